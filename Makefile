@@ -1,0 +1,37 @@
+# Two commands do all the set-up on a machine with only python3: `make demo` and `make test`.
+PYTHON ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+# numba compiles each kernel once and caches it next to the module
+export NUMBA_CACHE_DIR ?= $(CURDIR)/.numba_cache
+
+.PHONY: demo test bench lint clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+
+$(VENV)/.installed: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+$(VENV)/.installed-test: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[test]'
+	touch $(VENV)/.installed $@
+
+demo: $(VENV)/.installed
+	$(BIN)/scatmodes demo
+
+test: $(VENV)/.installed-test
+	$(BIN)/python -m pytest
+
+# benchmark scripts (not timed tests): they need the peers in the [bench] extra
+bench: $(VENV)/.installed-test
+	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
+	$(BIN)/python tests/benchmarks/bench_basis.py
+
+lint: $(VENV)/.installed-test
+	$(BIN)/ruff check basis project compress tests
+
+clean:
+	rm -rf $(VENV) .numba_cache .pytest_cache scatmodes-out
