@@ -1,0 +1,459 @@
+"""The symmetric coefficient matrix that holds a BRDF in a basis.
+
+q(w_i, w_o) = b(w_i)^T M b(w_o) with M symmetric, so every representation is reciprocal
+whatever its truncation or noise (Westin, Arvo & Torrance 1992, eqs 8-10).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from ._base import Basis
+from ._validate import as_directions, check_bytes, choice
+from .modes import HelmholtzModes, broadcast_batch
+from .zernike import HemiZernike
+
+__all__ = ["CoefficientMatrix", "QUANTITIES"]
+
+#: What a matrix represents: the BRDF itself, or f cos(theta_i) cos(theta_o) (Westin's choice).
+QUANTITIES = ("f", "f_cos")
+
+_R2 = float(np.sqrt(2.0))
+
+
+class CoefficientMatrix:
+    """A BRDF held as a symmetric matrix of coefficients in a (hemi)spherical basis.
+
+    Parameters
+    ----------
+    basis : basis.Basis
+        The basis of both directions (``HemiZernike``, ``HemiHarmonics`` or
+        ``SphericalHarmonics``).
+    matrix : (size, size) or (channels, size, size) array_like of float
+        Coefficients; must be symmetric in the last two axes (relative tolerance ``rtol``)
+        unless ``symmetrize`` is set.
+    quantity : {"f", "f_cos"}
+        ``"f"``: q = f; ``"f_cos"``: q = f cos(theta_i) cos(theta_o).
+    symmetrize : bool
+        Replace ``matrix`` by (M + M^T) / 2 (use for Monte Carlo or fitted estimates).
+    isotropic : bool or None
+        Storage. None: store in isotropic block form if the matrix is isotropic to ``rtol``,
+        densely otherwise. True: require isotropy (raises if the anisotropic part exceeds
+        ``rtol``; use :meth:`to_isotropic` to project instead). False: always dense.
+    rtol : float
+        Tolerance for the symmetry and isotropy checks, relative to max |M|.
+    info : dict, optional
+        Provenance (source, parameters, method, estimated errors); kept with the matrix and
+        written by ``compress.save``.
+
+    Notes
+    -----
+    Isotropic storage: for an isotropic BRDF (a function of |phi_i - phi_o|) the matrix is
+    block diagonal by azimuthal order, with no cos-sin coupling and equal cos-cos and sin-sin
+    blocks; only one symmetric block per azimuthal order m = 0..order is stored
+    (``blocks[m]``, rows and columns ordered by degree), which is what ``nbytes`` reports.
+
+    Examples
+    --------
+    Lambert with albedo a in Westin's form is one coefficient: f cos cos =
+    (a/pi) z_i z_o = (2a/3) b_10(w_i) b_10(w_o) for the hemisphere harmonic
+    b_10 = sqrt(2) Y_10 = sqrt(3/(2 pi)) z.
+
+    >>> import numpy as np
+    >>> from basis import HemiHarmonics
+    >>> hb = HemiHarmonics(3)
+    >>> M = np.zeros((hb.size, hb.size)); k = hb.index(1, 0); M[k, k] = 2 * 0.5 / 3
+    >>> cm = CoefficientMatrix(hb, M, quantity="f_cos")
+    >>> cm.is_isotropic, round(float(cm.eval([0, 0, 1.0], [0.6, 0, 0.8])), 12), round(float(cm.albedo([0.6, 0, 0.8])), 12)
+    (True, 0.159154943092, 0.5)
+    """
+
+    def __init__(
+        self,
+        basis: Basis,
+        matrix: ArrayLike,
+        quantity: str = "f_cos",
+        *,
+        symmetrize: bool = False,
+        isotropic: bool | None = None,
+        rtol: float = 1e-10,
+        info: dict[str, Any] | None = None,
+    ) -> None:
+        if not isinstance(basis, Basis):
+            raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
+                            f"{type(basis).__name__}")
+        self.basis = basis
+        self.quantity = choice(quantity, "quantity", QUANTITIES)
+        self.info: dict[str, Any] = dict(info or {})
+        m = _as_matrix(matrix, basis.size)
+        self._scalar = m.ndim == 2
+        m = m.reshape(-1, basis.size, basis.size)
+        scale = float(np.max(np.abs(m))) if m.size else 0.0
+        asym = float(np.max(np.abs(m - m.swapaxes(-1, -2)))) if m.size else 0.0
+        if symmetrize:
+            m = 0.5 * (m + m.swapaxes(-1, -2))
+        elif asym > rtol * scale:
+            raise ValueError(f"matrix must be symmetric (reciprocity): max |M - M^T| = "
+                             f"{asym:.3g} exceeds rtol * max |M| = {rtol * scale:.3g}; pass "
+                             "symmetrize=True to use (M + M^T)/2")
+        self._blocks: list[NDArray[np.float64]] | None = None
+        self._dense: NDArray[np.float64] | None = m
+        if isotropic is None or isotropic:
+            blocks = _isotropic_blocks(basis, m)
+            resid = float(np.max(np.abs(m - _assemble(basis, blocks)))) if m.size else 0.0
+            if resid <= rtol * scale:
+                self._blocks, self._dense = blocks, None
+            elif isotropic:
+                raise ValueError(f"matrix is not isotropic: its anisotropic part reaches "
+                                 f"{resid:.3g} (> rtol * max |M| = {rtol * scale:.3g}); use "
+                                 "CoefficientMatrix(...).to_isotropic() to project it")
+
+    # -- alternative constructors -----------------------------------------------------------
+    @classmethod
+    def from_blocks(
+        cls,
+        basis: Basis,
+        blocks: list[ArrayLike],
+        quantity: str = "f_cos",
+        *,
+        info: dict[str, Any] | None = None,
+    ) -> CoefficientMatrix:
+        """An isotropic matrix from its blocks, one per azimuthal order m = 0..basis.order.
+
+        ``blocks[m]`` has shape (k_m, k_m) or (channels, k_m, k_m), k_m the number of basis
+        functions with azimuthal order +m; rows and columns ordered by degree. It is
+        symmetrised.
+        """
+        if not isinstance(basis, Basis):
+            raise TypeError(f"basis must be a basis object, got {type(basis).__name__}")
+        cos_idx, _ = _azimuthal_groups(basis)
+        if len(blocks) != len(cos_idx):
+            raise ValueError(f"blocks must hold one block per azimuthal order 0..{len(cos_idx) - 1}"
+                             f", got {len(blocks)}")
+        arrs = [np.asarray(b, dtype=np.float64) for b in blocks]
+        scalar = arrs[0].ndim == 2
+        out = []
+        for m, (b, idx) in enumerate(zip(arrs, cos_idx)):
+            want = (idx.size, idx.size) if scalar else (arrs[0].shape[0], idx.size, idx.size)
+            if b.shape != want:
+                raise ValueError(f"blocks[{m}] must have shape {want}, got {b.shape}")
+            if not np.all(np.isfinite(b)):
+                raise ValueError(f"blocks[{m}] must be finite")
+            b = b.reshape(-1, idx.size, idx.size)
+            out.append(0.5 * (b + b.swapaxes(-1, -2)))
+        self = cls.__new__(cls)
+        self.basis, self.quantity = basis, choice(quantity, "quantity", QUANTITIES)
+        self.info = dict(info or {})
+        self._scalar, self._blocks, self._dense = scalar, out, None
+        return self
+
+    @classmethod
+    def from_modes(
+        cls,
+        modes: ArrayLike,
+        order: int,
+        quantity: str = "f_cos",
+        *,
+        isotropic: bool = True,
+        info: dict[str, Any] | None = None,
+    ) -> CoefficientMatrix:
+        """Inverse of :meth:`to_modes`: coefficients of ``HelmholtzModes(order, isotropic)``.
+
+        Parameters
+        ----------
+        modes : (size,) or (channels, size) array_like of float
+        order : int
+        isotropic : bool
+            Which mode set ``modes`` refers to.
+        """
+        hm = HelmholtzModes(order, isotropic=isotropic)
+        a = np.asarray(modes, dtype=np.float64)
+        if a.shape[-1:] != (hm.size,) or a.ndim > 2:
+            raise ValueError(f"modes must have shape ({hm.size},) or (channels, {hm.size}) for "
+                             f"{hm!r}, got shape {a.shape}")
+        if not np.all(np.isfinite(a)):
+            raise ValueError("modes must be finite")
+        scalar = a.ndim == 1
+        a = a.reshape(-1, hm.size)
+        zb = hm.hemisphere
+        p, q = hm.pairs.T
+        if isotropic:
+            n, m, l = hm.indices.T
+            factor = _iso_mode_factor(n, m, l)
+            blocks = [np.zeros((a.shape[0], (zb.order - j) // 2 + 1, (zb.order - j) // 2 + 1))
+                      for j in range(zb.order + 1)]
+            for k in range(hm.size):
+                i, j = (n[k] - l[k]) // 2, (m[k] - l[k]) // 2
+                blocks[l[k]][:, i, j] = blocks[l[k]][:, j, i] = a[:, k] / factor[k]
+            return cls.from_blocks(zb, [b[0] if scalar else b for b in blocks], quantity,
+                                   info=info)
+        mat = np.zeros((a.shape[0], zb.size, zb.size))
+        vals = a / np.where(p == q, 1.0, _R2)
+        mat[:, p, q] = vals
+        mat[:, q, p] = vals
+        return cls(zb, mat[0] if scalar else mat, quantity, info=info)
+
+    # -- what it holds ------------------------------------------------------------------
+    @property
+    def channels(self) -> int:
+        """Number of colour channels (1 for a scalar matrix)."""
+        src = self._dense if self._dense is not None else self._blocks[0]
+        return int(src.shape[0])
+
+    @property
+    def is_isotropic(self) -> bool:
+        """True when held in isotropic block form (a function of |phi_i - phi_o|)."""
+        return self._blocks is not None
+
+    @property
+    def blocks(self) -> list[NDArray[np.float64]]:
+        """Isotropic blocks, one per azimuthal order (copies); raises if not isotropic."""
+        if self._blocks is None:
+            raise ValueError("this matrix is not held in isotropic form; see to_isotropic()")
+        return [b[0].copy() if self._scalar else b.copy() for b in self._blocks]
+
+    @property
+    def matrix(self) -> NDArray[np.float64]:
+        """Dense (size, size) or (channels, size, size) matrix (assembled if isotropic)."""
+        m = self._full()
+        return m[0].copy() if self._scalar else m.copy()
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of coefficient storage actually held (blocks when isotropic)."""
+        if self._blocks is not None:
+            return int(sum(b.nbytes for b in self._blocks))
+        return int(self._dense.nbytes)
+
+    @property
+    def order(self) -> int:
+        """Order of the basis."""
+        return self.basis.order
+
+    def _full(self) -> NDArray[np.float64]:
+        if self._dense is not None:
+            return self._dense
+        check_bytes(8.0 * self.channels * self.basis.size**2, f"assembling {self!r}")
+        return _assemble(self.basis, self._blocks)
+
+    # -- evaluation ---------------------------------------------------------------------
+    def eval(self, wi: ArrayLike, wo: ArrayLike, *, min_cos: float = 1e-3) -> NDArray:
+        """BRDF values f(w_i, w_o).
+
+        Parameters
+        ----------
+        wi, wo : (..., 3) array_like of float
+            Unit vectors (towards the light and towards the viewer); batch shapes broadcast.
+        min_cos : float
+            Only for ``quantity="f_cos"``, where f = q / (cos theta_i cos theta_o): directions
+            closer to the horizon than cos(theta) = ``min_cos`` are evaluated as if at that
+            elevation (same azimuth), which bounds the division. For the odd hemisphere
+            harmonics q vanishes on the horizon and this gives the limit value to O(min_cos);
+            for other bases it caps the grazing amplification at 1/min_cos per direction.
+
+        Returns
+        -------
+        (...) ndarray, or (..., channels) for a multi-channel matrix
+            Zero where either direction is below the horizon (z < 0).
+        """
+        wi = as_directions(wi, "wi")
+        wo = as_directions(wo, "wo")
+        shape = broadcast_batch(wi, wo)
+        below = (wi[..., 2] < 0) | (wo[..., 2] < 0)
+        if self.quantity == "f_cos":
+            if not 0.0 < min_cos < 1.0:
+                raise ValueError(f"min_cos must lie in (0, 1), got {min_cos!r}")
+            wi, wo = _lift(wi, min_cos), _lift(wo, min_cos)
+        else:
+            wi, wo = _lift(wi, 0.0), _lift(wo, 0.0)
+        q = self._bilinear(wi, wo, shape)
+        if self.quantity == "f_cos":
+            q /= _chan(wi[..., 2] * wo[..., 2], self._scalar)
+        q[np.broadcast_to(below, shape)] = 0.0
+        return q
+
+    def _bilinear(self, wi: NDArray, wo: NDArray, shape: tuple) -> NDArray:
+        """b(wi)^T M b(wo) for every channel, broadcast over the batch shapes."""
+        npts = int(np.prod(shape))
+        check_bytes(8.0 * self.basis.size * npts * 2, f"evaluating {self!r} at {npts} pairs")
+        bi = self.basis.eval(wi)
+        bo = self.basis.eval(wo)
+        m = self._full()
+        out = np.stack([np.einsum("...j,...j->...", bi @ m[c], bo) for c in range(m.shape[0])],
+                       axis=-1)
+        out = np.broadcast_to(out, (*shape, m.shape[0]))
+        return out[..., 0].copy() if self._scalar else out.copy()
+
+    def albedo(self, wi: ArrayLike, *, min_cos: float = 1e-3) -> NDArray:
+        """Directional albedo a(w_i) = int_H f(w_i, w_o) cos(theta_o) d w_o of the representation.
+
+        Parameters
+        ----------
+        wi : (..., 3) array_like of float
+            Incident directions; below the horizon the albedo is 0.
+        min_cos : float
+            As in :meth:`eval` (``f_cos`` divides by cos theta_i).
+
+        Returns
+        -------
+        (...) or (..., channels) ndarray
+
+        Notes
+        -----
+        Exact for the truncated representation: a = b(w_i)^T M h with
+        h_k = int_H b_k cos(theta) dw (``quantity="f"``), or a = b(w_i)^T M g / cos(theta_i)
+        with g_k = int_H b_k dw (``"f_cos"``); see ``Basis.moments``.
+        """
+        wi = as_directions(wi, "wi")
+        below = wi[..., 2] < 0
+        lift = min_cos if self.quantity == "f_cos" else 0.0
+        if self.quantity == "f_cos" and not 0.0 < min_cos < 1.0:
+            raise ValueError(f"min_cos must lie in (0, 1), got {min_cos!r}")
+        wl = _lift(wi, lift)
+        h = self.basis.moments("cos" if self.quantity == "f" else "none")
+        v = self._full() @ h  # (channels, size)
+        a = self.basis.eval(wl) @ v.T  # (..., channels)
+        if self.quantity == "f_cos":
+            a /= wl[..., 2][..., None]
+        a[below] = 0.0
+        return a[..., 0] if self._scalar else a
+
+    # -- derived matrices ---------------------------------------------------------------
+    def truncate(self, order: int) -> CoefficientMatrix:
+        """The same BRDF in the basis truncated to ``order`` (a prefix of the functions)."""
+        nb = self.basis.truncate(order)
+        if self._blocks is not None:
+            cos_idx, _ = _azimuthal_groups(nb)
+            blocks = [b[:, :idx.size, :idx.size] for b, idx in zip(self._blocks, cos_idx)]
+            return CoefficientMatrix.from_blocks(
+                nb, [b[0] if self._scalar else b for b in blocks], self.quantity,
+                info=self.info)
+        m = self._dense[:, :nb.size, :nb.size]
+        return CoefficientMatrix(nb, m[0] if self._scalar else m, self.quantity,
+                                 isotropic=False, info=self.info)
+
+    def to_isotropic(self) -> CoefficientMatrix:
+        """Orthogonal projection onto isotropic BRDFs (the average over rotations of the
+        surface): cos-cos and sin-sin blocks averaged, every other coupling dropped."""
+        if self._blocks is not None:
+            return self
+        blocks = _isotropic_blocks(self.basis, self._dense)
+        return CoefficientMatrix.from_blocks(
+            self.basis, [b[0] if self._scalar else b for b in blocks], self.quantity,
+            info=self.info)
+
+    def to_modes(self, isotropic: bool | None = None) -> NDArray[np.float64]:
+        """Coefficients in the Helmholtz surface scattering modes (HemiZernike basis only).
+
+        Parameters
+        ----------
+        isotropic : bool or None
+            Mode set: ``HelmholtzModes(order, isotropic=True)`` (requires an isotropic matrix)
+            or the general reciprocal set. None picks the isotropic set when the matrix is
+            isotropic.
+
+        Returns
+        -------
+        (size,) or (channels, size) ndarray
+            In ``HelmholtzModes`` order; the sum of squares equals that of the matrix entries
+            (both bases are orthonormal).
+        """
+        if not isinstance(self.basis, HemiZernike):
+            raise ValueError(f"to_modes needs a HemiZernike basis, this matrix is in "
+                             f"{self.basis!r}")
+        iso = self.is_isotropic if isotropic is None else bool(isotropic)
+        hm = HelmholtzModes(self.order, isotropic=iso)
+        if iso:
+            if self._blocks is None:
+                raise ValueError("matrix is not isotropic; use to_isotropic() first or "
+                                 "to_modes(isotropic=False)")
+            n, m, l = hm.indices.T
+            vals = np.stack([self._blocks[lk][:, (nk - lk) // 2, (mk - lk) // 2]
+                             for nk, mk, lk in zip(n, m, l)], axis=-1)
+            out = vals * _iso_mode_factor(n, m, l)
+        else:
+            p, q = hm.pairs.T
+            out = self._full()[:, p, q] * np.where(p == q, 1.0, _R2)
+        return out[0] if self._scalar else out
+
+    def __repr__(self) -> str:
+        ch = "" if self._scalar else f", channels={self.channels}"
+        form = "isotropic" if self.is_isotropic else "dense"
+        return f"CoefficientMatrix({self.basis!r}, quantity={self.quantity!r}{ch}, {form})"
+
+
+def _as_matrix(matrix: ArrayLike, size: int) -> NDArray[np.float64]:
+    try:
+        m = np.array(matrix, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"matrix must be an array of floats, got {type(matrix).__name__}") from None
+    if m.ndim not in (2, 3) or m.shape[-2:] != (size, size):
+        raise ValueError(f"matrix must have shape ({size}, {size}) or (channels, {size}, {size}) "
+                         f"for this basis, got shape {m.shape}")
+    if m.ndim == 3 and m.shape[0] < 1:
+        raise ValueError("matrix must have at least one channel")
+    if not np.all(np.isfinite(m)):
+        raise ValueError(f"matrix must be finite: {int(np.sum(~np.isfinite(m)))} entries are "
+                         "NaN or inf")
+    return m
+
+
+def _azimuthal_groups(basis: Basis) -> tuple[list[NDArray], list[NDArray]]:
+    """Positions of the cos (az = +m) and sin (az = -m) functions per m >= 0, by degree."""
+    az = basis.azimuthal
+    top = int(np.max(np.abs(az))) if az.size else -1
+    cos_idx = [np.flatnonzero(az == m) for m in range(top + 1)]
+    sin_idx = [np.flatnonzero(az == -m) if m else np.empty(0, np.int64) for m in range(top + 1)]
+    return cos_idx, sin_idx
+
+
+def _isotropic_blocks(basis: Basis, m: NDArray) -> list[NDArray]:
+    cos_idx, sin_idx = _azimuthal_groups(basis)
+    blocks = []
+    for k, (c, s) in enumerate(zip(cos_idx, sin_idx)):
+        b = m[:, c[:, None], c]
+        if k:
+            b = 0.5 * (b + m[:, s[:, None], s])
+        blocks.append(b)
+    return blocks
+
+
+def _assemble(basis: Basis, blocks: list[NDArray]) -> NDArray:
+    cos_idx, sin_idx = _azimuthal_groups(basis)
+    out = np.zeros((blocks[0].shape[0], basis.size, basis.size))
+    for k, (c, s) in enumerate(zip(cos_idx, sin_idx)):
+        out[:, c[:, None], c] = blocks[k]
+        if k:
+            out[:, s[:, None], s] = blocks[k]
+    return out
+
+
+def _iso_mode_factor(n: NDArray, m: NDArray, l: NDArray) -> NDArray[np.float64]:
+    """Mode coefficient / block entry: 1, sqrt(2), sqrt(2), 2 (see HelmholtzModes Notes)."""
+    return np.where(n == m, np.where(l == 0, 1.0, _R2), np.where(l == 0, _R2, 2.0))
+
+
+def _lift(w: NDArray, min_cos: float) -> NDArray:
+    """Directions with z < min_cos moved up to z = min_cos at the same azimuth (a copy)."""
+    low = w[..., 2] < min_cos
+    if not np.any(low):
+        return w
+    w = w.copy()
+    v = w[low]
+    s = np.hypot(v[:, 0], v[:, 1])
+    s_new = np.sqrt(1.0 - min_cos * min_cos)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        f = np.where(s > 0, s_new / s, 0.0)
+    v[:, 0] *= f
+    v[:, 1] *= f
+    v[s == 0, 0] = s_new  # straight down (z = -1): any azimuth will do
+    v[:, 2] = min_cos
+    w[low] = v
+    return w
+
+
+def _chan(x: NDArray, scalar: bool) -> NDArray:
+    return x if scalar else x[..., None]
