@@ -19,11 +19,21 @@ def _demo(args: argparse.Namespace) -> int:
     print("scatmodes demo: orthonormal bases for BRDFs\n")
     print("Each basis evaluated at random directions; orthonormality error = max |G - I| of")
     print("its Gram matrix on an exact product quadrature rule.\n")
-    orders = tuple(int(o) for o in args.orders.split(","))
+    orders = _orders(args.orders)
     print(to_markdown(basis_table(orders=orders, points=args.points)))
     png = plot_modes(out / "modes.png", order=4)
     print(f"\nwrote {png} (the isotropic modes up to order 4 at theta_i = 45 deg)")
     return 0
+
+
+def _orders(text: str) -> tuple[int, ...]:
+    try:
+        orders = tuple(int(o) for o in text.split(","))
+    except ValueError:
+        orders = ()
+    if not orders or min(orders) < 0:
+        raise UserError(f"--orders must be comma-separated integers >= 0, got {text!r}")
+    return orders
 
 
 def _info(args: argparse.Namespace) -> int:

@@ -1,0 +1,215 @@
+"""CoefficientMatrix: exact representations (Lambert), albedo against quadrature, reciprocity,
+isotropic storage, truncation, modes round trip, channels and bad input."""
+
+import numpy as np
+import pytest
+
+from basis import (CoefficientMatrix, HelmholtzModes, HemiHarmonics, HemiZernike,
+                   SphericalHarmonics, from_angles, hemisphere_rule)
+
+
+def _unit_upper(rng, n):
+    w = rng.normal(size=(n, 3))
+    w[:, 2] = np.abs(w[:, 2])
+    return w / np.linalg.norm(w, axis=1, keepdims=True)
+
+
+def _random_symmetric(rng, size, channels=None):
+    shape = (size, size) if channels is None else (channels, size, size)
+    a = rng.normal(size=shape)
+    return a + np.swapaxes(a, -1, -2)
+
+
+def lambert_zernike(albedo):
+    """f = a/pi = 2a K_0^0 K_0^0, one coefficient in HemiZernike, quantity 'f'."""
+    zb = HemiZernike(4)
+    m = np.zeros((zb.size, zb.size))
+    m[0, 0] = 2 * albedo
+    return CoefficientMatrix(zb, m, quantity="f")
+
+
+def lambert_westin(albedo):
+    """f cos cos = (a/pi) z_i z_o = (2a/3) b_10 b_10 with b_10 = sqrt(2) Y_10 (Westin's
+    4a/3 for full-sphere coefficients, divided by the factor 2 of the hemisphere basis)."""
+    hb = HemiHarmonics(5)
+    m = np.zeros((hb.size, hb.size))
+    k = hb.index(1, 0)
+    m[k, k] = 2 * albedo / 3
+    return CoefficientMatrix(hb, m, quantity="f_cos")
+
+
+@pytest.mark.parametrize("make", [lambert_zernike, lambert_westin])
+def test_lambert_exact(make, rng):
+    cm = make(0.7)
+    wi, wo = _unit_upper(rng, 100), _unit_upper(rng, 100)
+    # one coefficient: only rounding (values ~0.2, sums of a few terms)
+    np.testing.assert_allclose(cm.eval(wi, wo), 0.7 / np.pi, rtol=1e-13)
+    grazing = from_angles(np.radians([0.0, 45.0, 89.0, 89.9, 90.0]), 0.3)
+    np.testing.assert_allclose(cm.albedo(grazing), 0.7, rtol=1e-12)
+    assert cm.is_isotropic
+    assert cm.nbytes < cm.matrix.nbytes
+
+
+def test_horizon_limit_with_odd_harmonics():
+    # q vanishes on the horizon for the odd completion; at z = 0 eval returns the limit
+    cm = lambert_westin(0.5)
+    assert cm.eval([1.0, 0.0, 0.0], [0.0, 1.0, 0.0]) == pytest.approx(0.5 / np.pi, rel=1e-12)
+
+
+def test_below_horizon_is_zero(rng):
+    cm = CoefficientMatrix(HemiZernike(3), _random_symmetric(rng, 10), quantity="f")
+    v = cm.eval([[0, 0, 1.0], [0, 0, -1.0], [0.6, 0, -0.8]], [0, 0, 1.0])
+    assert v[0] != 0 and v[1] == 0 and v[2] == 0
+    assert cm.albedo([0.0, 0.0, -1.0]) == 0
+
+
+@pytest.mark.parametrize("basis", [HemiZernike(5), HemiHarmonics(6), HemiHarmonics(5, "even")])
+@pytest.mark.parametrize("quantity", ["f", "f_cos"])
+def test_reciprocal_and_albedo_against_quadrature(basis, quantity, rng):
+    cm = CoefficientMatrix(basis, _random_symmetric(rng, basis.size), quantity=quantity)
+    wi, wo = _unit_upper(rng, 50), _unit_upper(rng, 50)
+    # b_i^T M b_o vs b_o^T M b_i: different summation order, values ~10
+    np.testing.assert_allclose(cm.eval(wi, wo), cm.eval(wo, wi), rtol=1e-12, atol=1e-12)
+    # albedo: for 'f' the integrand f cos is polynomial-like of degree <= order + 1 in z for
+    # HemiHarmonics, and of degree <= order/2 + 1 in rho^2 for Zernike: this rule is exact
+    wi = wi[:5] if quantity == "f" else wi[:5] * [1, 1, 1]
+    rule = hemisphere_rule(basis.order + 2, 2 * basis.order + 2)
+    integrand = cm.eval(wi[:, None, :], rule.points) * rule.points[:, 2]
+    if quantity == "f_cos":  # f cos(theta_o) = q / cos(theta_i): also exact per direction
+        pass
+    expect = integrand @ rule.weights
+    np.testing.assert_allclose(cm.albedo(wi), expect, rtol=1e-11, atol=1e-11)
+
+
+def test_symmetry_required_and_symmetrize(rng):
+    zb = HemiZernike(2)
+    a = rng.normal(size=(zb.size, zb.size))
+    with pytest.raises(ValueError, match=r"matrix must be symmetric \(reciprocity\)"):
+        CoefficientMatrix(zb, a)
+    cm = CoefficientMatrix(zb, a, symmetrize=True)
+    np.testing.assert_array_equal(cm.matrix, 0.5 * (a + a.T))
+
+
+def test_isotropic_detection_and_projection(rng):
+    zb = HemiZernike(4)
+    dense = CoefficientMatrix(zb, _random_symmetric(rng, zb.size))
+    assert not dense.is_isotropic
+    iso = dense.to_isotropic()
+    assert iso.is_isotropic
+    # the projection is the average over a common rotation of both directions; a uniform
+    # rule with more angles than twice the highest azimuthal order averages exactly
+    wi, wo = _unit_upper(rng, 20), _unit_upper(rng, 20)
+    angles = 2 * np.pi * np.arange(9) / 9
+
+    def rot(w, a):
+        c, s = np.cos(a), np.sin(a)
+        return np.stack([c * w[:, 0] - s * w[:, 1], s * w[:, 0] + c * w[:, 1], w[:, 2]], -1)
+
+    avg = np.mean([dense.eval(rot(wi, a), rot(wo, a)) for a in angles], axis=0)
+    # mirror symmetry is also part of isotropy (|dphi|): average over the reflection too
+    flip = np.array([1.0, -1.0, 1.0])
+    avg = 0.5 * (avg + np.mean([dense.eval(rot(wi * flip, a), rot(wo * flip, a))
+                                for a in angles], axis=0))
+    np.testing.assert_allclose(iso.eval(wi, wo), avg, rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="matrix is not isotropic"):
+        CoefficientMatrix(zb, dense.matrix, isotropic=True)
+    assert not CoefficientMatrix(zb, iso.matrix, isotropic=False).is_isotropic
+    assert CoefficientMatrix(zb, iso.matrix).is_isotropic
+
+
+def test_isotropic_storage_is_smaller(rng):
+    zb = HemiZernike(8)
+    iso = CoefficientMatrix(zb, _random_symmetric(rng, zb.size)).to_isotropic()
+    expect = sum(((8 - m) // 2 + 1) ** 2 for m in range(9)) * 8
+    assert iso.nbytes == expect
+    assert iso.nbytes < zb.size**2 * 8 / 10
+
+
+@pytest.mark.parametrize("iso", [True, False])
+def test_truncate_is_prefix(rng, iso):
+    zb = HemiZernike(6)
+    cm = CoefficientMatrix(zb, _random_symmetric(rng, zb.size))
+    if iso:
+        cm = cm.to_isotropic()
+    t = cm.truncate(3)
+    assert t.basis == HemiZernike(3) and t.is_isotropic == iso
+    np.testing.assert_array_equal(t.matrix, cm.matrix[:10, :10])
+    with pytest.raises(ValueError, match="order must be <= 6"):
+        cm.truncate(7)
+
+
+@pytest.mark.parametrize("isotropic", [True, False])
+def test_modes_round_trip_and_parseval(rng, isotropic):
+    hm = HelmholtzModes(5, isotropic=isotropic)
+    a = rng.normal(size=hm.size)
+    cm = CoefficientMatrix.from_modes(a, 5, isotropic=isotropic)
+    np.testing.assert_allclose(cm.to_modes(isotropic=isotropic), a, rtol=0, atol=1e-15)
+    # Parseval: both expansions are orthonormal, so the squared norms agree
+    assert np.sum(a**2) == pytest.approx(np.sum(cm.matrix**2), rel=1e-13)
+    # and the matrix evaluates to the mode sum (for quantity f_cos: q = f cos cos)
+    wi, wo = _unit_upper(rng, 30), _unit_upper(rng, 30)
+    q = cm.eval(wi, wo, min_cos=1e-9) * wi[:, 2] * wo[:, 2]
+    np.testing.assert_allclose(q, hm.eval(wi, wo) @ a, rtol=1e-11, atol=1e-12)
+
+
+def test_modes_errors(rng):
+    hb = HemiHarmonics(3)
+    with pytest.raises(ValueError, match="to_modes needs a HemiZernike basis"):
+        CoefficientMatrix(hb, _random_symmetric(rng, hb.size)).to_modes()
+    zb = HemiZernike(3)
+    with pytest.raises(ValueError, match="matrix is not isotropic; use to_isotropic"):
+        CoefficientMatrix(zb, _random_symmetric(rng, zb.size)).to_modes(isotropic=True)
+    with pytest.raises(ValueError, match=r"modes must have shape \(14,\)"):
+        CoefficientMatrix.from_modes(np.zeros(13), 4)
+
+
+def test_channels(rng):
+    zb = HemiZernike(3)
+    m = _random_symmetric(rng, zb.size, channels=3)
+    cm = CoefficientMatrix(zb, m, quantity="f")
+    assert cm.channels == 3
+    wi, wo = _unit_upper(rng, 8), _unit_upper(rng, 8)
+    v = cm.eval(wi, wo)
+    assert v.shape == (8, 3)
+    for c in range(3):
+        one = CoefficientMatrix(zb, m[c], quantity="f")
+        np.testing.assert_allclose(v[:, c], one.eval(wi, wo), rtol=1e-14, atol=1e-14)
+    assert cm.albedo(wi).shape == (8, 3)
+    assert cm.to_isotropic().to_modes().shape == (3, HelmholtzModes(3).size)
+
+
+def test_broadcasting(rng):
+    cm = lambert_zernike(0.3)
+    assert cm.eval([0, 0, 1.0], _unit_upper(rng, 5)).shape == (5,)
+    assert cm.eval(_unit_upper(rng, 4)[:, None], _unit_upper(rng, 5)).shape == (4, 5)
+    with pytest.raises(ValueError, match="broadcastable batch shapes"):
+        cm.eval(_unit_upper(rng, 4), _unit_upper(rng, 5))
+
+
+def test_full_sphere_basis_allowed(rng):
+    sh = SphericalHarmonics(2)
+    cm = CoefficientMatrix(sh, _random_symmetric(rng, sh.size), quantity="f")
+    assert cm.eval(_unit_upper(rng, 3), _unit_upper(rng, 3)).shape == (3,)
+
+
+@pytest.mark.parametrize("kwargs, exc, match", [
+    ({"basis": "zernike"}, TypeError, "basis must be a basis object"),
+    ({"matrix": np.zeros((3, 3))}, ValueError, r"matrix must have shape \(6, 6\)"),
+    ({"matrix": np.full((6, 6), np.nan)}, ValueError, "matrix must be finite"),
+    ({"matrix": "abc"}, TypeError, "matrix must be an array of floats"),
+    ({"quantity": "g"}, ValueError, "quantity must be one of 'f', 'f_cos'"),
+])
+def test_bad_construction(kwargs, exc, match):
+    args = {"basis": HemiZernike(2), "matrix": np.eye(6), "quantity": "f"} | kwargs
+    with pytest.raises(exc, match=match):
+        CoefficientMatrix(args["basis"], args["matrix"], args["quantity"])
+
+
+def test_bad_eval():
+    cm = lambert_westin(0.5)
+    with pytest.raises(ValueError, match="min_cos must lie in"):
+        cm.eval([0, 0, 1.0], [0, 0, 1.0], min_cos=0.0)
+    with pytest.raises(ValueError, match=r"wi must have shape \(\.\.\., 3\)"):
+        cm.eval([0, 1.0], [0, 0, 1.0])
+    with pytest.raises(ValueError, match="wo must be unit vectors"):
+        cm.eval([0, 0, 1.0], [0, 0, 2.0])
