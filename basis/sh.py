@@ -8,7 +8,7 @@ csphase=1, kind='real'. Flat index of (l, m) in the full basis: l*l + l + m.
 from __future__ import annotations
 
 import numpy as np
-from numpy.typing import NDArray
+from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis, triangular_offsets
 from ._jit import njit, pjit, prange
@@ -78,6 +78,49 @@ class SphericalHarmonics(Basis):
     def exact_rule(self) -> HemisphereRule:
         """A product rule exact for every product of two functions of this basis over its domain."""
         return sphere_rule(self._order + 1, 2 * self._order + 1)
+
+    # -- grid transforms (pyshtools, ducc backend) ------------------------------------------
+    def grid(self) -> NDArray[np.float64]:
+        """Directions of the Gauss-Legendre grid of pyshtools, shape (lmax+1, 2 lmax+1, 3).
+
+        Latitude rows at the zeros of P_{lmax+1}(cos theta) (north to south), longitudes
+        2 pi j / (2 lmax + 1). Values sampled there are what :meth:`expand` takes.
+        """
+        import pyshtools
+
+        zero, _ = pyshtools.expand.SHGLQ(self._order)
+        phi = 2.0 * np.pi * np.arange(2 * self._order + 1) / (2 * self._order + 1)
+        s = np.sqrt((1.0 - zero) * (1.0 + zero))
+        return np.stack(np.broadcast_arrays(s[:, None] * np.cos(phi), s[:, None] * np.sin(phi),
+                                            zero[:, None]), axis=-1)
+
+    def expand(self, values: ArrayLike) -> NDArray[np.float64]:
+        """Coefficients (flat order) of a function sampled on :meth:`grid`.
+
+        Exact for band-limited functions of degree <= lmax (Gauss-Legendre quadrature);
+        computed by pyshtools' ``SHExpandGLQ`` (ducc0 backend when installed).
+
+        Parameters
+        ----------
+        values : (lmax+1, 2 lmax+1) array_like of float
+        """
+        import pyshtools
+
+        v = np.asarray(values, dtype=np.float64)
+        want = (self._order + 1, 2 * self._order + 1)
+        if v.shape != want:
+            raise ValueError(f"values must have the grid shape {want}, got {v.shape}")
+        if not np.all(np.isfinite(v)):
+            raise ValueError("values must be finite")
+        cilm = pyshtools.expand.SHExpandGLQ(np.ascontiguousarray(v), norm=4, csphase=1)
+        return self.from_cilm(cilm)
+
+    def synthesize(self, coeffs: ArrayLike) -> NDArray[np.float64]:
+        """Values on :meth:`grid` of the expansion with these flat coefficients
+        (pyshtools ``MakeGridGLQ``)."""
+        import pyshtools
+
+        return pyshtools.expand.MakeGridGLQ(self.to_cilm(coeffs), norm=4, csphase=1)
 
     # -- pyshtools interoperability ---------------------------------------------------------
     def to_cilm(self, coeffs: NDArray[np.float64]) -> NDArray[np.float64]:
@@ -157,7 +200,13 @@ class HemiHarmonics(SphericalHarmonics):
     def __repr__(self) -> str:
         return f"HemiHarmonics({self._order}, parity={self._parity!r})"
 
-    to_cilm = from_cilm = None  # flat coefficients of a parity subset are not a pyshtools array
+    def _full_sphere_only(self, *args, **kwargs):
+        raise NotImplementedError("grid transforms and pyshtools arrays are defined for "
+                                  "SphericalHarmonics only; a hemisphere parity subset is not "
+                                  "a full-sphere expansion")
+
+    # a parity subset is not a pyshtools coefficient array, nor expandable on the sphere grid
+    to_cilm = from_cilm = grid = expand = synthesize = _full_sphere_only
 
 
 def _sh_indices(lmax: int, parity: str) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
@@ -241,27 +290,42 @@ def _sh_kernel(dirs, lmax, parity, norm, a, b, d, off, out):
                 if pmm < _TINY and pmm != 0.0:
                     pmm *= _HUGE
                     emm -= _RESCALE
-            p2 = 0.0
-            p1 = pmm
-            e = emm
-            scale = np.ldexp(1.0, e) if e < 0 else 1.0
+            if m == 0:
+                fc = 1.0
+                fs = 0.0
+            else:
+                fc = cm
+                fs = sm
+            if emm < 0:
+                fc *= np.ldexp(1.0, emm)
+                fs *= np.ldexp(1.0, emm)
+            _store(row, m, m, pmm, fc, fs, parity)
+            if m == lmax:
+                continue
             base = off[m] - m
-            for l in range(m, lmax + 1):
-                if l == m:
-                    p = pmm
-                else:
-                    p = a[base + l] * z * p1 - b[base + l] * p2
-                    if abs(p) > _HUGE:
-                        p *= _TINY
-                        p1 *= _TINY
-                        e += _RESCALE
-                        scale = np.ldexp(1.0, e) if e < 0 else 1.0
-                if parity == 2 or (l + m) % 2 == parity:
-                    v = p * scale
-                    if m == 0:
-                        row[_pos(l, 0, parity)] = v
-                    else:
-                        row[_pos(l, m, parity)] = v * cm
-                        row[_pos(l, -m, parity)] = v * sm
+            p2 = pmm
+            p1 = a[base + m + 1] * z * pmm
+            _store(row, m + 1, m, p1, fc, fs, parity)
+            e = emm
+            for l in range(m + 2, lmax + 1):
+                p = a[base + l] * z * p1 - b[base + l] * p2
                 p2 = p1
                 p1 = p
+                if abs(p) > _HUGE:  # only in carried-exponent columns
+                    p1 *= _TINY
+                    p2 *= _TINY
+                    e += _RESCALE
+                    scale = np.ldexp(1.0, e) if e < 0 else 1.0
+                    fc = (cm if m else 1.0) * scale
+                    fs = (sm if m else 0.0) * scale
+                _store(row, l, m, p1, fc, fs, parity)
+
+
+@njit(inline="always")
+def _store(row, l, m, p, fc, fs, parity):
+    if parity == 2 or (l + m) % 2 == parity:
+        if m == 0:
+            row[_pos(l, 0, parity)] = p * fc
+        else:
+            row[_pos(l, m, parity)] = p * fc
+            row[_pos(l, -m, parity)] = p * fs
