@@ -56,7 +56,7 @@ class HemiZernike(Basis):
     --------
     >>> import numpy as np
     >>> zb = HemiZernike(2)
-    >>> zb.size, list(zb.degree), list(zb.azimuthal)
+    >>> zb.size, zb.degree.tolist(), zb.azimuthal.tolist()
     (6, [0, 1, 1, 2, 2, 2], [0, -1, 1, -2, 0, 2])
     >>> bool(np.isclose(zb.eval([0.0, 0.0, 1.0])[0], 1 / np.sqrt(2 * np.pi)))
     True
