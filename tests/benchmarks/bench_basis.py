@@ -14,10 +14,15 @@ For each order L in ``--orders`` (default 8, 16, 32), the wall time of one call 
 Every evaluator sees the same ``--points`` random directions (seeded and uniform on the
 sphere, with z replaced by |z| so the hemisphere bases accept them) and runs on the same
 number of threads. numba gets ``numba.set_num_threads`` and sphericart's OpenMP gets
-``OMP_NUM_THREADS``, which is set before sphericart is imported. Each evaluator is called
-once untimed (JIT compilation or cache load, first touch of buffers), then ``--repeats``
-times under ``time.perf_counter``, and the best call is reported. A call includes what a user
-pays: input validation and a fresh output array.
+``OMP_NUM_THREADS``, which is set before sphericart is imported, along with
+``OMP_WAIT_POLICY=PASSIVE`` unless the caller set a policy: numba's "omp" threading layer and
+sphericart each load their own OpenMP runtime, and spinning idle threads in one slow the other.
+Each evaluator is called once untimed (JIT compilation or cache load, first touch of buffers).
+Then all evaluators of one L are called in turn for ``--repeats`` rounds under
+``time.perf_counter``, and the best call of each is reported. A call includes what a user
+pays: input validation and a fresh output array. On a shared or virtual machine the run-to-run
+spread is larger than the gaps between rows, so compare rows from a single run. The header
+line reports how busy the other processes kept the CPU.
 
 Columns: ms per call; ns per (point x function), i.e. time / (points * functions); ratio =
 our ns per (point x function) / sphericart's at the same L, so < 1 means we are faster. The
@@ -56,7 +61,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
                    help="threads for numba and OpenMP (default: $OMP_NUM_THREADS or all cores)")
     p.add_argument("--seed", type=int, default=20240607, help="seed of the random directions")
     p.add_argument("--tol", type=float, default=1e-12,
-                   help="largest accepted |ours - sphericart| (observed about 3e-14 at L=32)")
+                   help="largest accepted |ours - sphericart| (seen: 1.8e-13 at L=32)")
     args = p.parse_args(argv)
     if args.points < 1 or args.repeats < 1 or args.threads < 1 or min(args.orders) < 0:
         p.error("--points, --repeats and --threads must be >= 1, and --orders >= 0")
@@ -71,16 +76,35 @@ def directions(n: int, seed: int) -> np.ndarray:
     return v
 
 
-def best_time(fn, repeats: int) -> tuple[float, np.ndarray]:
-    """Warm up once, then return (best of ``repeats`` wall times in s, the last result)."""
-    out = fn()
-    best = np.inf
+def best_times(fns: list, repeats: int) -> list[float]:
+    """Best wall time (s) of each callable, calling them in turn, ``repeats`` rounds.
+
+    Round robin rather than one evaluator after the other, so that a disturbance (another
+    process, frequency changes) hits every evaluator alike. Results are dropped at once.
+    """
+    best = [np.inf] * len(fns)
     for _ in range(repeats):
-        del out  # free the previous result first, so at most one extra result is held
-        t0 = time.perf_counter()
-        out = fn()
-        best = min(best, time.perf_counter() - t0)
-    return best, out
+        for j, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            fn()
+            best[j] = min(best[j], time.perf_counter() - t0)
+    return best
+
+
+def busy_cores(seconds: float = 1.0) -> float:
+    """Cores kept busy by other processes while we sleep (Linux /proc/stat; nan elsewhere)."""
+    def snapshot() -> tuple[int, int]:
+        with open("/proc/stat") as f:
+            ticks = [int(t) for t in f.readline().split()[1:]]
+        return sum(ticks), ticks[3] + ticks[4]  # total, idle + iowait
+
+    try:
+        total0, idle0 = snapshot()
+        time.sleep(seconds)
+        total1, idle1 = snapshot()
+    except (OSError, ValueError, IndexError):
+        return float("nan")
+    return (os.cpu_count() or 1) * (1.0 - (idle1 - idle0) / max(total1 - total0, 1))
 
 
 def max_abs_diff(ours: np.ndarray, ref: np.ndarray, cols: np.ndarray, scale: float,
@@ -92,8 +116,12 @@ def max_abs_diff(ours: np.ndarray, ref: np.ndarray, cols: np.ndarray, scale: flo
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
-    # OpenMP reads OMP_NUM_THREADS when sphericart's runtime loads: set it before the import.
+    # OpenMP reads these when sphericart's runtime loads: set them before the import. numba's
+    # "omp" threading layer uses a second OpenMP runtime; with the default wait policy each
+    # runtime's idle threads spin after a call and slow the next call of the other (measured:
+    # sphericart at L=8 took 12 to 28 ms, against 11 to 12 ms with PASSIVE).
     os.environ["OMP_NUM_THREADS"] = str(args.threads)
+    os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
     try:
         import sphericart
     except ImportError:
@@ -119,31 +147,29 @@ def main(argv: list[str] | None = None) -> int:
             for j in range(out.shape[1]):
                 out[i, j] = 1.0
 
+    _fill_kernel(np.empty((1, 1)))  # compile; numba picks its threading layer here
     dirs = directions(args.points, args.seed)
     n = dirs.shape[0]
-    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
-    print(f"# bench_basis: {n} points, best of {args.repeats}, {platform.machine()}"
-          f" ({os.cpu_count()} cores), numpy {np.__version__}, numba {numba.__version__}, "
+    busy = busy_cores()
+    print(f"# bench_basis: {n} points, best of {args.repeats}, {platform.machine()} "
+          f"({os.cpu_count()} cores), numpy {np.__version__}, numba {numba.__version__}, "
           f"sphericart {version('sphericart')}")
-    print(f"# threads: numba.get_num_threads() = {numba.get_num_threads()}, OMP_NUM_THREADS = "
-          f"{os.environ['OMP_NUM_THREADS']}; 1-minute load average before start {load:.2f}"
-          + (" (other processes are busy: timings will be disturbed)" if load > 0.5 else ""))
+    env = {k: os.environ[k] for k in ("OMP_NUM_THREADS", "OMP_WAIT_POLICY")}
+    print(f"# threads: numba.get_num_threads() = {numba.get_num_threads()} "
+          f"({numba.threading_layer()} layer), {env}; other processes kept {busy:.2f} cores "
+          "busy before start" + (" (timings will be disturbed)" if busy > 0.2 else ""))
 
     rows, failed = [], False
     for order in args.orders:
         sc = sphericart.SphericalHarmonics(order)
-        t_sc, y_sc = best_time(partial(sc.compute, dirs), args.repeats)
-        per_sc = t_sc / (n * y_sc.shape[1])
-        rows.append(("sphericart.SphericalHarmonics", order, y_sc.shape[1], t_sc, per_sc))
-
-        ours = [basis.SphericalHarmonics(order), basis.HemiZernike(order),
-                basis.HemiHarmonics(order)]
+        ours = [b for b in (basis.SphericalHarmonics(order), basis.HemiZernike(order),
+                            basis.HemiHarmonics(order)) if b.size]  # HemiHarmonics(0) is empty
+        floor_shape = (n, (order + 1) ** 2)
+        # Warm-up calls (JIT compile or cache load, first touch), which also check the values.
+        y_sc = sc.compute(dirs)
         for b in ours:
-            if b.size == 0:  # HemiHarmonics(0): the odd parity has no function of degree 0
-                continue
-            t, y = best_time(partial(b.eval, dirs), args.repeats)
-            rows.append((f"basis.{type(b).__name__}", order, b.size, t, t / (n * b.size)))
-            if not isinstance(b, basis.SphericalHarmonics):  # HemiZernike: no reference
+            y = b.eval(dirs)
+            if not isinstance(b, basis.SphericalHarmonics):  # HemiZernike: no reference here
                 continue
             # our column order from our own (l, m) labels; sphericart's is l*l + l + m
             k = b.degree * b.degree + b.degree + b.azimuthal
@@ -156,11 +182,15 @@ def main(argv: list[str] | None = None) -> int:
             print(f"# check L={order}: max |{type(b).__name__} - "
                   f"{'sqrt(2) * ' if hemi else ''}sphericart| = {err:.2e} "
                   f"({'ok' if err <= args.tol else 'FAIL'}, tol {args.tol:.0e})")
-        del y_sc
-        t_fl, _ = best_time(lambda order=order: _fill_kernel(np.empty((n, (order + 1) ** 2))),
-                            args.repeats)
-        rows.append(("write floor (np.empty + fill)", order, (order + 1) ** 2, t_fl,
-                     t_fl / (n * (order + 1) ** 2)))
+        del y, y_sc
+
+        names = ["sphericart.SphericalHarmonics"] + [f"basis.{type(b).__name__}" for b in ours]
+        names.append("write floor (np.empty + fill)")
+        sizes = [floor_shape[1]] + [b.size for b in ours] + [floor_shape[1]]
+        fns = [partial(sc.compute, dirs)] + [partial(b.eval, dirs) for b in ours]
+        fns.append(lambda shape=floor_shape: _fill_kernel(np.empty(shape)))
+        for name, size, t in zip(names, sizes, best_times(fns, args.repeats), strict=True):
+            rows.append((name, order, size, t, t / (n * size)))
 
     print()
     print("| basis | L | functions | ms per call | ns per (point x function) "
