@@ -1,0 +1,749 @@
+"""Least-squares fits of scattered BRDF measurements, and the seed's hemisphere tessellation.
+
+A measurement is a triple (w_i, w_o, f). The fit finds the symmetric coefficient matrix M of
+q(w_i, w_o) = b(w_i)^T M b(w_o) (q = f, or q = f cos(theta_i) cos(theta_o)) that best matches
+the measurements in the least-squares sense. Reciprocity (M = M^T) and, optionally,
+isotropy are built into the unknowns, so every fit is reciprocal whatever the noise.
+
+Koenderink, van Doorn & Stavridi (ECCV 1996, sec. 4) fit measured brick on a tessellation of
+the hemisphere into 40 triangles (a once-subdivided icosahedron) with a pseudoinverse;
+:func:`tessellate_hemisphere` and :func:`bin_samples` give that face-by-face data matrix and
+:func:`fit` the pseudoinverse (an SVD, with the condition number it reveals).
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from dataclasses import dataclass
+from os import PathLike
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+from numpy.typing import ArrayLike, NDArray
+
+from basis import QUANTITIES, Basis, CoefficientMatrix, from_angles
+from basis._validate import as_directions, check_bytes, choice, nonneg_int
+
+__all__ = [
+    "COND_WARN",
+    "BinnedSamples",
+    "Tessellation",
+    "bin_samples",
+    "design_matrix",
+    "fit",
+    "read_table",
+    "tessellate_hemisphere",
+    "to_unknowns",
+]
+
+#: Condition number above which :func:`fit` warns (without regularization): the solution's
+#: relative error can reach condition * 1.1e-16 > 1e-4 from rounding alone, and any noise in
+#: the data is amplified by the same factor.
+COND_WARN = 1e12
+
+#: Copies of the (samples, unknowns) design matrix alive at the peak of a fit: the matrix, the
+#: left singular vectors and the SVD's workspace. Used for the MAX_BYTES check.
+_DESIGN_COPIES = 3
+
+
+# -- the unknowns ------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class _Layout:
+    """Which entries of M each unknown stands for (see :func:`design_matrix`)."""
+
+    rows: NDArray[np.int64]  # cos (or only) function of the first factor, per unknown
+    cols: NDArray[np.int64]  # ... of the second factor; rows[u] <= cols[u] in block order
+    sin_rows: NDArray[np.int64]  # sin partners (index ``size``, a zero column, when none)
+    sin_cols: NDArray[np.int64]
+    block: NDArray[np.int64]  # azimuthal order m (isotropic) or -1 (general)
+    brow: NDArray[np.int64]  # position inside block m (isotropic)
+    bcol: NDArray[np.int64]
+    mult: NDArray[np.float64]  # entries of the dense M that share this unknown
+    sizes: tuple[int, ...]  # block sizes k_m (isotropic)
+
+    @property
+    def count(self) -> int:
+        return int(self.rows.size)
+
+
+def _layout(basis: Basis, isotropic: bool) -> _Layout:
+    size = basis.size
+    if not isotropic:
+        r, c = np.triu_indices(size)
+        none = np.full(r.size, size, dtype=np.int64)
+        return _Layout(r.astype(np.int64), c.astype(np.int64), none, none,
+                       np.full(r.size, -1, dtype=np.int64), r.astype(np.int64),
+                       c.astype(np.int64), np.where(r == c, 1.0, 2.0), ())
+    az = basis.azimuthal
+    top = int(np.max(np.abs(az))) if az.size else -1
+    parts: list[tuple[NDArray, ...]] = []
+    sizes = []
+    for m in range(top + 1):
+        cos_idx = np.flatnonzero(az == m)
+        sin_idx = np.flatnonzero(az == -m) if m else np.full(cos_idx.size, size)
+        sizes.append(cos_idx.size)
+        j, k = np.triu_indices(cos_idx.size)
+        mult = np.where(j == k, 1.0, 2.0) * (1.0 if m == 0 else 2.0)
+        parts.append((cos_idx[j], cos_idx[k], sin_idx[j], sin_idx[k], np.full(j.size, m),
+                      j, k, mult))
+    cat = [np.concatenate([p[i] for p in parts]) if parts else np.empty(0) for i in range(8)]
+    ints = [np.asarray(a, dtype=np.int64) for a in cat[:7]]
+    return _Layout(*ints, np.asarray(cat[7], dtype=np.float64), tuple(sizes))
+
+
+def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
+                  isotropic: bool = True) -> NDArray[np.float64]:
+    """The linear map from the fit's unknowns to q at each measured pair of directions.
+
+    Parameters
+    ----------
+    wi, wo : (n, 3) array_like of float
+        Unit vectors in the upper hemisphere.
+    basis : basis.Basis
+        A hemisphere basis (``HemiZernike`` or ``HemiHarmonics``).
+    isotropic : bool
+        Unknowns of an isotropic (True) or general reciprocal (False) matrix.
+
+    Returns
+    -------
+    (n, unknowns) ndarray of float64
+        Column u is q(w_i, w_o) for the matrix with ``to_unknowns`` equal to the unit vector u.
+
+    Notes
+    -----
+    The unknowns are the free entries of the symmetric matrix M, in orthonormal scaling:
+
+    * ``isotropic=False``: one unknown per entry M_jk, j <= k (``np.triu_indices(size)``
+      order). The column is b_j(w_i) b_k(w_o) for j = k and
+      (b_j(w_i) b_k(w_o) + b_k(w_i) b_j(w_o)) / sqrt(2) for j < k.
+    * ``isotropic=True``: blocks B_m for m = 0..max |azimuthal| as in
+      ``CoefficientMatrix.from_blocks`` (rows and columns the functions with azimuthal order
+      +m, by degree), one unknown per upper-triangle entry (j, k), j <= k, in row-major order,
+      block after block. With c and s the cos (+m) and sin (-m) functions, the column is
+      [b_cj(w_i) b_ck(w_o) + b_sj(w_i) b_sk(w_o)] (+ the transposed term when j < k; no sin
+      terms when m = 0), divided by sqrt(mult), mult the number of entries of M sharing the
+      unknown: 1 (j = k, m = 0), 2 (j < k or m > 0, not both), 4 (j < k and m > 0).
+
+    Each unknown is sqrt(mult) times the matrix entry, so the squared norm of the unknowns is
+    the squared Frobenius norm of M, which for an orthonormal basis is the L2 norm of q over
+    H x H. The columns are the orthonormal reciprocal products of the basis: for
+    ``HemiZernike`` they are exactly the ``basis.HelmholtzModes`` (isotropic or general), so
+    weighting the rows by an exact product quadrature gives a design matrix with orthonormal
+    columns (condition number 1).
+
+    Examples
+    --------
+    >>> from basis import HemiZernike
+    >>> design_matrix([[0, 0, 1.0]], [[0.6, 0, 0.8]], HemiZernike(8)).shape
+    (1, 55)
+    """
+    wi, wo, _ = _check_pairs(wi, wo)
+    _check_basis(basis)
+    lay = _layout(basis, _flag(isotropic, "isotropic"))
+    check_bytes(8.0 * wi.shape[0] * lay.count * 2,
+                f"the design matrix of {wi.shape[0]} samples and {lay.count} unknowns")
+    return _design(basis.eval(wi), basis.eval(wo), lay)
+
+
+def _design(bi: NDArray, bo: NDArray, lay: _Layout) -> NDArray[np.float64]:
+    # bi, bo (n, size) basis values; returns (n, unknowns). A zero column is appended so that
+    # index ``size`` stands for "no sin partner"; no loop over samples or unknowns.
+    n = bi.shape[0]
+    bi = np.concatenate([bi, np.zeros((n, 1))], axis=1)
+    bo = np.concatenate([bo, np.zeros((n, 1))], axis=1)
+    a = bi[:, lay.rows] * bo[:, lay.cols]
+    off = lay.rows != lay.cols
+    a[:, off] += bi[:, lay.cols[off]] * bo[:, lay.rows[off]]
+    sin = lay.sin_rows < bi.shape[1] - 1
+    if np.any(sin):
+        s = sin & off
+        a[:, sin] += bi[:, lay.sin_rows[sin]] * bo[:, lay.sin_cols[sin]]
+        a[:, s] += bi[:, lay.sin_cols[s]] * bo[:, lay.sin_rows[s]]
+    a *= 1.0 / np.sqrt(lay.mult)
+    return a
+
+
+def to_unknowns(cm: CoefficientMatrix, *, isotropic: bool = True) -> NDArray[np.float64]:
+    """The fit's unknowns for a coefficient matrix: ``design_matrix(...) @ to_unknowns(cm)``
+    is q at the sampled pairs.
+
+    Parameters
+    ----------
+    cm : basis.CoefficientMatrix
+    isotropic : bool
+        Layout as in :func:`design_matrix`; True needs an isotropic ``cm``.
+
+    Returns
+    -------
+    (unknowns,) or (unknowns, channels) ndarray of float64
+        sqrt(mult) times the matrix entries (see :func:`design_matrix`); its squared norm is
+        the squared Frobenius norm of ``cm.matrix``.
+    """
+    if not isinstance(cm, CoefficientMatrix):
+        raise TypeError(f"cm must be a CoefficientMatrix, got {type(cm).__name__}")
+    lay = _layout(cm.basis, _flag(isotropic, "isotropic"))
+    scale = np.sqrt(lay.mult)
+    scalar = cm.matrix.ndim == 2 if not cm.is_isotropic else cm.blocks[0].ndim == 2
+    if isotropic:
+        if not cm.is_isotropic:
+            raise ValueError("cm must be isotropic for isotropic=True; use cm.to_isotropic() "
+                             "or isotropic=False")
+        blocks = [b.reshape(-1, *b.shape[-2:]) for b in cm.blocks]
+        cells = zip(lay.block, lay.brow, lay.bcol, strict=True)
+        vals = np.stack([blocks[m][:, j, k] for m, j, k in cells], axis=-1) if lay.count \
+            else np.zeros((len(blocks[0]), 0))
+    else:
+        mat = cm.matrix.reshape(-1, cm.basis.size, cm.basis.size)
+        vals = mat[:, lay.rows, lay.cols]
+    out = (vals * scale).T
+    return out[:, 0].copy() if scalar else out
+
+
+def _unpack(z: NDArray, basis: Basis, lay: _Layout, isotropic: bool, scalar: bool,
+            quantity: str, info: dict[str, Any]) -> CoefficientMatrix:
+    # z (unknowns, channels) -> CoefficientMatrix
+    x = z / np.sqrt(lay.mult)[:, None]
+    ch = z.shape[1]
+    if isotropic:
+        blocks = [np.zeros((ch, k, k)) for k in lay.sizes]
+        for m in range(len(lay.sizes)):
+            sel = lay.block == m
+            j, kk = lay.brow[sel], lay.bcol[sel]
+            blocks[m][:, j, kk] = x[sel].T
+            blocks[m][:, kk, j] = x[sel].T
+        return CoefficientMatrix.from_blocks(basis, [b[0] if scalar else b for b in blocks],
+                                             quantity, info=info)
+    mat = np.zeros((ch, basis.size, basis.size))
+    mat[:, lay.rows, lay.cols] = x.T
+    mat[:, lay.cols, lay.rows] = x.T
+    return CoefficientMatrix(basis, mat[0] if scalar else mat, quantity, isotropic=False,
+                             info=info)
+
+
+# -- the fit -----------------------------------------------------------------------------------
+def fit(
+    wi: ArrayLike,
+    wo: ArrayLike,
+    values: ArrayLike,
+    basis: Basis,
+    *,
+    quantity: str = "f",
+    isotropic: bool = True,
+    weights: ArrayLike | None = None,
+    regularization: float = 0.0,
+) -> CoefficientMatrix:
+    """Fit a reciprocal coefficient matrix to scattered BRDF measurements by least squares.
+
+    Parameters
+    ----------
+    wi, wo : (n, 3) array_like of float
+        Unit vectors in the upper hemisphere (towards the light, towards the viewer).
+    values : (n,) or (n, channels) array_like of float
+        Measured BRDF values f, in 1/sr. All channels are fitted in one solve.
+    basis : basis.Basis
+        A hemisphere basis: ``HemiZernike`` or ``HemiHarmonics``. ``SphericalHarmonics`` is
+        refused: restricted to the hemisphere, its even and odd halves each span the same
+        functions, so its products are nearly dependent and the fit is ill-posed.
+    quantity : {"f", "f_cos"}
+        What the matrix represents and the fit matches: f itself, or
+        f cos(theta_i) cos(theta_o) (the target is then ``values * cos_i * cos_o``).
+    isotropic : bool
+        Fit only the isotropic blocks (one symmetric block per azimuthal order); otherwise
+        every entry of the symmetric matrix.
+    weights : (n,) array_like of float, optional
+        Per-sample weights w >= 0 (e.g. inverse variances, or bin counts); samples of weight 0
+        are dropped.
+    regularization : float
+        Tikhonov parameter lambda >= 0.
+
+    Returns
+    -------
+    basis.CoefficientMatrix
+        Isotropic block form if ``isotropic``, dense otherwise; ``info`` holds ``method``
+        ("lstsq"), ``condition_number`` (largest / smallest singular value of the weighted
+        design matrix; inf if rank-deficient), ``rank``, ``unknowns``, ``samples`` (those of
+        weight > 0), ``residual_rms`` (list, one per channel: sqrt(sum w r^2 / sum w) of the
+        residual r in the fitted quantity), ``regularization``, ``isotropic``, ``quantity``.
+
+    Raises
+    ------
+    ValueError
+        Bad shapes, non-finite values, negative weights, directions below the horizon, or
+        fewer samples than unknowns without regularization.
+    MemoryError
+        If the design matrix and its SVD would exceed ``basis._validate.MAX_BYTES``.
+
+    Warns
+    -----
+    RuntimeWarning
+        Without regularization, when the design matrix is rank-deficient (the minimum-norm
+        solution is returned) or its condition number exceeds :data:`COND_WARN` = 1e12.
+
+    Notes
+    -----
+    Minimises ||W^(1/2) (A z - y)||^2 + lambda ||z||^2 with A = :func:`design_matrix` and y
+    the target, by an SVD of W^(1/2) A = U S V^T: z = V diag(s / (s^2 + lambda)) U^T W^(1/2) y;
+    for lambda = 0 singular values below s_max * max(samples, unknowns) * eps are treated as
+    zero (the pseudoinverse, as in the seed; numpy's ``matrix_rank`` tolerance). The unknowns
+    z are the matrix entries scaled by the square root of the number of entries of M that
+    share them, so ||z|| is the Frobenius norm of the whole (dense) M, that is the L2 norm of
+    q over H x H, independent of the storage: the penalty does not favour the off-diagonal
+    or the m > 0 entries, which the raw entry vector would count once though they appear two
+    or four times in M. The same scaling makes the condition number 1 for data on an exact
+    quadrature rule (orthonormal columns).
+
+    Koenderink et al. (1996, sec. 4) fit 40 x 40 face-centre data of brick at order 8
+    isotropic (55 unknowns, the ``HelmholtzModes(8)`` count) with a pseudoinverse; see
+    :func:`tessellate_hemisphere` and :func:`bin_samples`.
+
+    Examples
+    --------
+    Lambert with albedo 0.5 is recovered exactly from 40 random pairs:
+
+    >>> import numpy as np
+    >>> from basis import HemiZernike
+    >>> rng = np.random.default_rng(1)
+    >>> w = rng.normal(size=(80, 3)); w[:, 2] = abs(w[:, 2])
+    >>> w /= np.linalg.norm(w, axis=1, keepdims=True)
+    >>> cm = fit(w[:40], w[40:], np.full(40, 0.5 / np.pi), HemiZernike(2))
+    >>> round(float(cm.albedo([0, 0, 1.0])), 12), cm.info["unknowns"], cm.info["rank"]
+    (0.5, 5, 5)
+    """
+    wi, wo, n = _check_pairs(wi, wo)
+    _check_basis(basis)
+    quantity = choice(quantity, "quantity", QUANTITIES)
+    isotropic = _flag(isotropic, "isotropic")
+    y, scalar = _check_values(values, n)
+    w = _check_weights(weights, n)
+    lam = _check_regularization(regularization)
+
+    keep = w > 0
+    wi, wo, y, w = wi[keep], wo[keep], y[keep], w[keep]
+    samples = int(wi.shape[0])
+    lay = _layout(basis, isotropic)
+    unknowns = lay.count
+    kind = "isotropic" if isotropic else "general"
+    if samples < unknowns and lam == 0.0:
+        raise ValueError(
+            f"fit is underdetermined: {samples} samples (of weight > 0) for {unknowns} "
+            f"unknowns ({kind} {basis!r}); lower the order, use isotropic=True, add samples, "
+            "or pass regularization > 0")
+    check_bytes(8.0 * _DESIGN_COPIES * samples * unknowns,
+                f"fitting {unknowns} unknowns to {samples} samples (design matrix and its SVD)")
+    if quantity == "f_cos":
+        y = y * (wi[:, 2] * wo[:, 2])[:, None]
+    sw = np.sqrt(w)
+    a = _design(basis.eval(wi), basis.eval(wo), lay)
+    a *= sw[:, None]
+    yw = y * sw[:, None]
+    z, s, rank = _solve(a, yw, lam)
+    cond = float(s[0] / s[-1]) if rank == unknowns and unknowns and s[-1] > 0 else float("inf")
+    if unknowns == 0:
+        cond = 1.0
+    resid = a @ z - yw
+    rms = np.sqrt(np.sum(resid * resid, axis=0) / np.sum(w)) if samples else np.zeros(y.shape[1])
+    if lam == 0.0 and rank < unknowns:
+        warnings.warn(f"fit is rank-deficient: rank {rank} of {unknowns} unknowns ({kind} "
+                      f"{basis!r}, {samples} samples), condition number inf; the minimum-norm "
+                      "solution is returned: sample more pairs of directions, lower the "
+                      "order or pass regularization > 0", RuntimeWarning, stacklevel=2)
+    elif lam == 0.0 and cond > COND_WARN:
+        warnings.warn(f"fit is badly conditioned: condition number {cond:.3g} > {COND_WARN:.0e} "
+                      f"({unknowns} unknowns, {samples} samples); rounding alone may cost "
+                      f"{cond * np.finfo(float).eps:.1e} relative error: lower the order or "
+                      "pass regularization > 0", RuntimeWarning, stacklevel=2)
+    info = {
+        "method": "lstsq",
+        "condition_number": cond,
+        "rank": int(rank),
+        "unknowns": int(unknowns),
+        "samples": samples,
+        "residual_rms": [float(r) for r in rms],
+        "regularization": lam,
+        "isotropic": isotropic,
+        "quantity": quantity,
+        "basis": repr(basis),
+    }
+    return _unpack(z, basis, lay, isotropic, scalar, quantity, info)
+
+
+def _solve(a: NDArray, y: NDArray, lam: float) -> tuple[NDArray, NDArray, int]:
+    """Tikhonov / pseudoinverse solution of a z = y by SVD; a (n, u), y (n, c).
+
+    Returns z (u, c), the singular values (min(n, u),) in decreasing order, and the rank.
+    """
+    n, u = a.shape
+    if n == 0 or u == 0:
+        return np.zeros((u, y.shape[1])), np.zeros(min(n, u)), 0
+    try:
+        left, s, vt = scipy.linalg.svd(a, full_matrices=False, check_finite=False,
+                                       lapack_driver="gesdd")
+    except np.linalg.LinAlgError:  # gesdd can fail to converge; gesvd is slower but robust
+        left, s, vt = scipy.linalg.svd(a, full_matrices=False, check_finite=False,
+                                       lapack_driver="gesvd")
+    tol = s[0] * max(n, u) * np.finfo(np.float64).eps
+    rank = int(np.sum(s > tol))
+    if lam > 0.0:
+        filt = s / (s * s + lam)
+    else:
+        filt = np.zeros_like(s)
+        filt[:rank] = 1.0 / s[:rank]
+    z = vt.T @ (filt[:, None] * (left.T @ y))
+    return z, s, rank
+
+
+# -- validation --------------------------------------------------------------------------------
+def _check_basis(basis: object) -> None:
+    if not isinstance(basis, Basis):
+        raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
+                        f"{type(basis).__name__}")
+    if basis.domain != "hemisphere":
+        raise ValueError(f"basis must be a hemisphere basis (HemiZernike or HemiHarmonics), got "
+                         f"{basis!r}: on the hemisphere the full-sphere harmonics are redundant "
+                         "(their even and odd halves span the same functions), so a fit in "
+                         "them is ill-posed; use basis.HemiHarmonics(lmax) instead")
+
+
+def _flag(value: object, name: str) -> bool:
+    if not isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
+
+
+def _check_pairs(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray, NDArray, int]:
+    wi = as_directions(wi, "wi", upper=True)
+    wo = as_directions(wo, "wo", upper=True)
+    if wi.ndim != 2:
+        raise ValueError(f"wi must have shape (n, 3), got shape {wi.shape}")
+    if wo.shape != wi.shape:
+        raise ValueError(f"wo must have the shape of wi {wi.shape}, got shape {wo.shape}")
+    return wi, wo, int(wi.shape[0])
+
+
+def _check_values(values: ArrayLike, n: int) -> tuple[NDArray, bool]:
+    try:
+        v = np.array(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"values must be an array of floats, got {type(values).__name__}") \
+            from None
+    if v.ndim not in (1, 2) or v.shape[0] != n or (v.ndim == 2 and v.shape[1] < 1):
+        raise ValueError(f"values must have shape ({n},) or ({n}, channels) to match wi, got "
+                         f"shape {v.shape}")
+    bad = ~np.isfinite(v)
+    if bad.any():
+        raise ValueError(f"values must be finite: {int(bad.sum())} entries are NaN or inf "
+                         f"(first at sample {np.argwhere(bad)[0][0]})")
+    return (v[:, None], True) if v.ndim == 1 else (v, False)
+
+
+def _check_weights(weights: ArrayLike | None, n: int) -> NDArray[np.float64]:
+    if weights is None:
+        return np.ones(n)
+    w = np.array(weights, dtype=np.float64)
+    if w.shape != (n,):
+        raise ValueError(f"weights must have shape ({n},) to match wi, got shape {w.shape}")
+    if not np.all(np.isfinite(w)):
+        raise ValueError("weights must be finite")
+    if np.any(w < 0):
+        raise ValueError(f"weights must be >= 0, got min {w.min():.6g}")
+    if n and not np.any(w > 0):
+        raise ValueError("weights must not all be zero")
+    return w
+
+
+def _check_regularization(value: object) -> float:
+    try:
+        lam = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise TypeError(f"regularization must be a number, got {value!r}") from None
+    if not np.isfinite(lam) or lam < 0:
+        raise ValueError(f"regularization must be finite and >= 0, got {value!r}")
+    return lam
+
+
+# -- the seed's tessellation -------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class Tessellation:
+    """Spherical triangles covering the upper hemisphere.
+
+    Attributes
+    ----------
+    vertices : (v, 3) ndarray of float
+        Unit vectors.
+    faces : (f, 3) ndarray of int
+        Vertex indices, counter-clockwise seen from outside the sphere.
+    centroids : (f, 3) ndarray of float
+        Mean of each face's vertices, normalised to a unit vector.
+    solid_angles : (f,) ndarray of float
+        Exact spherical-triangle areas (steradians); they sum to 2 pi.
+    """
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    centroids: NDArray[np.float64]
+    solid_angles: NDArray[np.float64]
+
+    @property
+    def size(self) -> int:
+        """Number of faces."""
+        return int(self.faces.shape[0])
+
+    def locate(self, dirs: ArrayLike) -> NDArray[np.int64]:
+        """Index of the face containing each direction.
+
+        Parameters
+        ----------
+        dirs : (..., 3) array_like of float
+            Unit vectors with z >= 0.
+
+        Returns
+        -------
+        (...) ndarray of int
+            The face whose three edge planes the direction is farthest inside (a direction
+            on an edge shared by two faces goes to either, as rounding decides).
+        """
+        d = as_directions(dirs, "dirs", upper=True)
+        flat = d.reshape(-1, 3)
+        check_bytes(8.0 * flat.shape[0] * self.size * 2, f"locating {flat.shape[0]} directions")
+        v = self.vertices[self.faces]  # (f, 3 corners, 3)
+        normals = np.cross(v, np.roll(v, -1, axis=1))  # edge planes, (f, 3, 3), inward
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+        inside = flat @ normals[:, 0].T  # (n, f): signed distance inside the closest edge
+        for e in (1, 2):
+            np.minimum(inside, flat @ normals[:, e].T, out=inside)
+        return np.argmax(inside, axis=-1).reshape(d.shape[:-1])
+
+
+def tessellate_hemisphere(subdivisions: int = 1) -> Tessellation:
+    """The seed's near-equal-area triangulation of the upper hemisphere (40 faces).
+
+    Parameters
+    ----------
+    subdivisions : int
+        Times each icosahedron face is split into four (edge midpoints pushed onto the
+        sphere), >= 1: 40 * 4^(subdivisions - 1) faces. 1 is the seed's tessellation.
+
+    Returns
+    -------
+    Tessellation
+
+    Notes
+    -----
+    The icosahedron is oriented with a vertex at the pole z = 1 and its upper ring of five
+    vertices at z = 1/sqrt(5), azimuths 0, 72, ..., 288 degrees (the lower ring at
+    z = -1/sqrt(5), azimuths 36 + 72 k). The equator then crosses the ten faces of the middle
+    band, but each crossing edge runs from one ring to the other, symmetric about z = 0, so
+    its midpoint lies exactly on the equator, and one subdivision splits every band face along
+    the equator: 5 cap faces x 4 + 5 band faces x 3 + 5 band faces x 1 = 40 faces in z >= 0,
+    none straddling it (further subdivisions keep the equator, since the midpoint of two
+    equator points is on the equator). Other orientations leave faces straddling the equator
+    (checked: with a face centred at the pole 34 faces lie above, 34 below and 12 straddle;
+    with an edge centred there, 36, 36 and 8).
+
+    The faces are not of identical area, as the seed says: the 30 corner faces subtend
+    0.14949 sr and the 10 central faces 0.17985 sr (spread max/min = 1.2031), against
+    2 pi / 40 = 0.15708 sr. Areas are exact (Van Oosterom & Strackee 1983:
+    tan(Omega/2) = |a.(b x c)| / (1 + a.b + b.c + c.a)); their sum is 2 pi to rounding.
+
+    The seed counts 820 reciprocal data values (40 * 41 / 2) and 66 with isotropy. For this
+    orientation the face-pair classes under isotropy (equal theta_i, theta_o and
+    |phi_i - phi_o| up to exchange, i.e. the orbits of the tessellation's own symmetry group
+    C5v) number 96; we could not reproduce 66. Both exceed the 55 unknowns of an isotropic
+    order 8 fit (``HelmholtzModes(8).size``), so that fit is overdetermined either way.
+
+    Examples
+    --------
+    >>> t = tessellate_hemisphere()
+    >>> t.size, round(float(t.solid_angles.sum() / np.pi), 12)
+    (40, 2.0)
+    """
+    k = nonneg_int(subdivisions, "subdivisions", maximum=5)
+    if k < 1:
+        raise ValueError(f"subdivisions must be >= 1 (0 leaves faces straddling the equator), "
+                         f"got {k}")
+    ring = 2 * np.pi * np.arange(5) / 5
+    r, h = 2 / np.sqrt(5), 1 / np.sqrt(5)
+    verts = np.vstack([
+        [[0.0, 0.0, 1.0]],
+        np.stack([r * np.cos(ring), r * np.sin(ring), np.full(5, h)], axis=1),
+        np.stack([r * np.cos(ring + np.pi / 5), r * np.sin(ring + np.pi / 5), np.full(5, -h)],
+                 axis=1),
+        [[0.0, 0.0, -1.0]],
+    ])
+    faces = []
+    for i in range(5):
+        a, b, c, d = 1 + i, 1 + (i + 1) % 5, 6 + i, 6 + (i + 1) % 5
+        faces += [(0, a, b), (a, c, b), (b, c, d), (c, 11, d)]
+    f = np.array(faces, dtype=np.int64)
+    for _ in range(k):
+        verts, f = _subdivide(verts, f)
+    z = verts[f][..., 2]
+    f = f[np.all(z > -1e-12, axis=1)]
+    used, f = np.unique(f, return_inverse=True)
+    f = f.reshape(-1, 3)
+    verts = verts[used]
+    verts[np.abs(verts[:, 2]) < 1e-12, 2] = 0.0  # equator vertices exactly on it
+    verts /= np.linalg.norm(verts, axis=1, keepdims=True)
+    a, b, c = verts[f[:, 0]], verts[f[:, 1]], verts[f[:, 2]]
+    num = np.einsum("ij,ij->i", a, np.cross(b, c))
+    den = 1 + np.einsum("ij,ij->i", a, b) + np.einsum("ij,ij->i", b, c) \
+        + np.einsum("ij,ij->i", c, a)
+    areas = 2 * np.arctan2(np.abs(num), den)
+    cen = a + b + c
+    cen /= np.linalg.norm(cen, axis=1, keepdims=True)
+    return Tessellation(verts, f, cen, areas)
+
+
+def _subdivide(verts: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
+    """Split each triangle into four at its edge midpoints (projected onto the sphere)."""
+    edges = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]),
+                    axis=1)
+    uniq, inv = np.unique(edges, axis=0, return_inverse=True)
+    mids = verts[uniq[:, 0]] + verts[uniq[:, 1]]
+    mids /= np.linalg.norm(mids, axis=1, keepdims=True)
+    nf = faces.shape[0]
+    ab, bc, ca = (len(verts) + inv.reshape(-1)[j * nf:(j + 1) * nf] for j in range(3))
+    a, b, c = faces.T
+    new = np.concatenate([np.stack(t, axis=1) for t in
+                          ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+    return np.vstack([verts, mids]), new
+
+
+# -- binning -----------------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class BinnedSamples:
+    """Measurements binned face by face: the seed's data matrix.
+
+    Attributes
+    ----------
+    mean : (faces, faces) or (faces, faces, channels) ndarray of float
+        Mean value of the samples with w_i in face i and w_o in face o; NaN where empty.
+    counts : (faces, faces) ndarray of int
+        Number of samples per cell.
+    tessellation : Tessellation
+    """
+
+    mean: NDArray[np.float64]
+    counts: NDArray[np.int64]
+    tessellation: Tessellation
+
+    def samples(self) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+        """(wi, wo, values, weights) of the occupied cells at the face centroids.
+
+        Pass them to :func:`fit` (``fit(wi, wo, values, basis, weights=weights)``): the
+        weights are the counts, so the fit treats every original sample as if it had been
+        measured at its face centroid.
+        """
+        i, o = np.nonzero(self.counts)
+        c = self.tessellation.centroids
+        return c[i], c[o], self.mean[i, o], self.counts[i, o].astype(np.float64)
+
+
+def bin_samples(wi: ArrayLike, wo: ArrayLike, values: ArrayLike,
+                tessellation: Tessellation | None = None) -> BinnedSamples:
+    """Average measurements over the faces of a tessellation (the seed's 40 x 40 matrix).
+
+    Parameters
+    ----------
+    wi, wo : (n, 3) array_like of float
+        Unit vectors in the upper hemisphere.
+    values : (n,) or (n, channels) array_like of float
+    tessellation : Tessellation, optional
+        Default :func:`tessellate_hemisphere` ().
+
+    Returns
+    -------
+    BinnedSamples
+
+    Examples
+    --------
+    >>> t = tessellate_hemisphere()
+    >>> b = bin_samples(t.centroids[:2], t.centroids[2:4], [1.0, 3.0], t)
+    >>> b.mean.shape, int(b.counts.sum()), float(b.mean[0, 2])
+    ((40, 40), 2, 1.0)
+    """
+    wi, wo, n = _check_pairs(wi, wo)
+    y, scalar = _check_values(values, n)
+    t = tessellate_hemisphere() if tessellation is None else tessellation
+    if not isinstance(t, Tessellation):
+        raise TypeError(f"tessellation must be a Tessellation, got {type(t).__name__}")
+    f = t.size
+    cell = t.locate(wi) * f + t.locate(wo)
+    counts = np.bincount(cell, minlength=f * f)
+    sums = np.stack([np.bincount(cell, weights=y[:, c], minlength=f * f)
+                     for c in range(y.shape[1])], axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = np.where(counts[:, None] > 0, sums / counts[:, None], np.nan)
+    mean = mean.reshape(f, f, -1)
+    return BinnedSamples(mean[..., 0] if scalar else mean, counts.reshape(f, f), t)
+
+
+# -- plain tables ------------------------------------------------------------------------------
+def read_table(path: str | PathLike) -> tuple[NDArray, NDArray, NDArray]:
+    """Read tabular BRDF measurements from a text file.
+
+    Parameters
+    ----------
+    path : str or path-like
+        Text with one measurement per line: theta_i, phi_i, theta_o, phi_o in DEGREES, then
+        one value column or three (RGB), in 1/sr. Cells are separated by commas or by
+        whitespace (not both in one line); '#' starts a comment; blank lines are skipped.
+        theta must lie in [0, 90]; phi is any finite angle.
+
+    Returns
+    -------
+    wi, wo : (n, 3) ndarray of float
+        Unit vectors (z the surface normal).
+    values : (n,) or (n, 3) ndarray of float
+
+    Raises
+    ------
+    ValueError
+        Naming the line, for a wrong number of columns, a cell that is not a number, a
+        non-finite cell, or theta outside [0, 90]; or if the file holds no data.
+    """
+    rows: list[list[float]] = []
+    ncol = None
+    with open(path, encoding="utf-8") as fh:
+        for lineno, raw in enumerate(fh, start=1):
+            line = raw.split("#", 1)[0].strip()
+            if not line:
+                continue
+            cells = [c.strip() for c in line.split(",")] if "," in line else re.split(r"\s+",
+                                                                                   line)
+            if ncol is None:
+                if len(cells) not in (5, 7):
+                    raise ValueError(f"line {lineno}: a row must have 5 columns (theta_i, phi_i, "
+                                     "theta_o, phi_o in degrees, value) or 7 (... R, G, B), got "
+                                     f"{len(cells)}")
+                ncol = len(cells)
+            elif len(cells) != ncol:
+                raise ValueError(f"line {lineno}: every row must have {ncol} columns like the "
+                                 f"first, got {len(cells)}")
+            row = []
+            for j, cell in enumerate(cells):
+                try:
+                    x = float(cell)
+                except ValueError:
+                    raise ValueError(f"line {lineno}, column {j + 1}: cell must be a number, got "
+                                     f"{cell!r} (comment out header lines with '#')") from None
+                if not np.isfinite(x):
+                    raise ValueError(f"line {lineno}, column {j + 1}: cell must be finite, got "
+                                     f"{cell!r}")
+                row.append(x)
+            for j in (0, 2):
+                if not 0.0 <= row[j] <= 90.0:
+                    name = "theta_i" if j == 0 else "theta_o"
+                    raise ValueError(f"line {lineno}: {name} must lie in [0, 90] degrees, got "
+                                     f"{row[j]:g}")
+            rows.append(row)
+    if not rows:
+        raise ValueError(f"{path}: the file must hold at least one data row, got none")
+    a = np.array(rows)
+    rad = np.radians(a[:, :4])
+    wi = from_angles(rad[:, 0], rad[:, 1])
+    wo = from_angles(rad[:, 2], rad[:, 3])
+    values = a[:, 4] if a.shape[1] == 5 else a[:, 4:]
+    return wi, wo, values

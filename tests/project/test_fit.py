@@ -1,0 +1,483 @@
+"""project.fit: least-squares fits of scattered samples (design matrix against the Helmholtz
+modes, recovery of known coefficients, weights, regularization, conditioning against numpy's
+SVD), the seed's brick scenario on the 40-face tessellation, binning and table reading."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import project.fit as fitmod
+from basis import (
+    CoefficientMatrix,
+    HelmholtzModes,
+    HemiHarmonics,
+    HemiZernike,
+    SphericalHarmonics,
+    from_angles,
+)
+from project.fit import (
+    bin_samples,
+    design_matrix,
+    fit,
+    read_table,
+    tessellate_hemisphere,
+    to_unknowns,
+)
+
+EPS = np.finfo(np.float64).eps
+
+
+def _random_matrix(rng, basis, *, isotropic, channels=None):
+    """A random symmetric CoefficientMatrix (projected onto the isotropic ones if asked)."""
+    shape = (basis.size, basis.size) if channels is None else (channels, basis.size, basis.size)
+    a = rng.normal(size=shape)
+    cm = CoefficientMatrix(basis, a + np.swapaxes(a, -1, -2), "f", isotropic=False)
+    return cm.to_isotropic() if isotropic else cm
+
+
+def _with_quantity(cm, quantity):
+    m = cm.blocks if cm.is_isotropic else None
+    if m is not None:
+        return CoefficientMatrix.from_blocks(cm.basis, m, quantity)
+    return CoefficientMatrix(cm.basis, cm.matrix, quantity, isotropic=False)
+
+
+def _face_centre_pairs():
+    """The seed's 40 x 40 data layout: every (face_i, face_o) pair of face centroids."""
+    t = tessellate_hemisphere()
+    i, o = np.meshgrid(np.arange(t.size), np.arange(t.size), indexing="ij")
+    return t, t.centroids[i.ravel()], t.centroids[o.ravel()]
+
+
+def brick_like(wi, wo, albedo=0.45, lobes=1.5, sharpness=2.0):
+    """A smooth isotropic reciprocal BRDF in the spirit of the seed's brick: Lambertian near
+    the normal, with back- and forward-scatter lobes that grow towards grazing angles."""
+    zi, zo = wi[..., 2], wo[..., 2]
+    back = np.einsum("...j,...j->...", wi, wo)
+    forward = zi * zo - wi[..., 0] * wo[..., 0] - wi[..., 1] * wo[..., 1]
+    grazing = (1 - zi) * (1 - zo)
+    return albedo / np.pi * (1 + lobes * grazing * (np.exp(sharpness * (back - 1))
+                                                    + np.exp(sharpness * (forward - 1))))
+
+
+# -- the design matrix -------------------------------------------------------------------------
+@pytest.mark.parametrize("isotropic", [True, False])
+def test_design_columns_are_helmholtz_modes(isotropic, unit_vectors):
+    # independent reference: basis.HelmholtzModes builds the same orthonormal reciprocal
+    # products its own way (indices (n, m, l) or pairs (a, b))
+    zb = HemiZernike(4)
+    wi, wo = unit_vectors(200, upper=True), unit_vectors(200, upper=True)
+    got = design_matrix(wi, wo, zb, isotropic=isotropic)
+    hm = HelmholtzModes(4, isotropic=isotropic)
+    lay = fitmod._layout(zb, isotropic)
+    if isotropic:
+        cells = zip(lay.block, lay.brow, lay.bcol, strict=True)
+        where = {(b, j, k): u for u, (b, j, k) in enumerate(cells)}
+        perm = [where[(az, (m - az) // 2, (n - az) // 2)] for n, m, az in hm.indices]
+    else:
+        where = {(j, k): u for u, (j, k) in enumerate(zip(lay.rows, lay.cols, strict=True))}
+        perm = [where[(a, b)] for a, b in hm.pairs]
+    assert sorted(perm) == list(range(hm.size))
+    # values are O(1) products of two or four O(1) factors: rounding only
+    np.testing.assert_allclose(got[:, perm], hm.eval(wi, wo), rtol=0, atol=1e-13)
+
+
+@pytest.mark.parametrize("basis", [HemiZernike(4), HemiHarmonics(5)])
+def test_exact_quadrature_gives_condition_one(basis):
+    # the columns are orthonormal on H x H; the product of two exact rules integrates every
+    # product of two columns exactly, so the weighted design has orthonormal columns
+    rule = basis.exact_rule()
+    p = rule.points.shape[0]
+    i, o = np.meshgrid(np.arange(p), np.arange(p), indexing="ij")
+    wi, wo = rule.points[i.ravel()], rule.points[o.ravel()]
+    w = rule.weights[i.ravel()] * rule.weights[o.ravel()]
+    cm = fit(wi, wo, np.ones(p * p), basis, weights=w, isotropic=False)
+    # rounding in the Gauss-Legendre nodes and in Gram sums of ~1e3 terms
+    assert cm.info["condition_number"] == pytest.approx(1.0, abs=1e-12)
+
+
+def test_to_unknowns_norm_is_frobenius(rng, unit_vectors):
+    zb = HemiZernike(3)
+    for iso in (True, False):
+        cm = _random_matrix(rng, zb, isotropic=iso)
+        z = to_unknowns(cm, isotropic=iso)
+        # the scaling by sqrt(mult) makes the unknowns an isometry of M: rounding only
+        assert np.linalg.norm(z) == pytest.approx(np.linalg.norm(cm.matrix), rel=1e-14)
+        wi, wo = unit_vectors(50, upper=True), unit_vectors(50, upper=True)
+        np.testing.assert_allclose(design_matrix(wi, wo, zb, isotropic=iso) @ z,
+                                   cm.eval(wi, wo), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="cm must be isotropic"):
+        to_unknowns(_random_matrix(rng, zb, isotropic=False), isotropic=True)
+    with pytest.raises(TypeError, match="cm must be a CoefficientMatrix"):
+        to_unknowns(np.eye(3))
+
+
+# -- recovery of known coefficients ------------------------------------------------------------
+@pytest.mark.parametrize("basis", [HemiZernike(4), HemiHarmonics(5)])
+@pytest.mark.parametrize("isotropic", [True, False])
+@pytest.mark.parametrize("quantity", ["f", "f_cos"])
+def test_recovers_known_coefficients(basis, isotropic, quantity, rng, unit_vectors):
+    truth = _with_quantity(_random_matrix(rng, basis, isotropic=isotropic, channels=3),
+                           quantity)
+    wi, wo = unit_vectors(700, upper=True), unit_vectors(700, upper=True)
+    # stay clear of the horizon so that eval(f_cos) needs no min_cos lift (f = q / cos cos)
+    ok = (wi[:, 2] > 0.01) & (wo[:, 2] > 0.01)
+    wi, wo = wi[ok], wo[ok]
+    values = truth.eval(wi, wo)
+    cm = fit(wi, wo, values, basis, quantity=quantity, isotropic=isotropic)
+    assert cm.is_isotropic == isotropic and cm.channels == 3 and cm.quantity == quantity
+    info = cm.info
+    assert info["unknowns"] == (HelmholtzModes(4).size if isotropic else 120)
+    assert info["rank"] == info["unknowns"] and info["samples"] == wi.shape[0]
+    cond, scale = info["condition_number"], np.max(np.abs(truth.matrix))
+    # noise-free data carry rounding ~ eps relative; least squares turns it into at most
+    # ~cond * eps relative error in the unknowns; 100x covers the sums of ~10^2 terms
+    # (observed: 1e-15 .. 3e-15 relative to max |M|, with cond 1.3 .. 8)
+    np.testing.assert_allclose(cm.matrix, truth.matrix, rtol=0, atol=100 * cond * EPS * scale)
+    # the residual of an exact representation is rounding of q: sums of ~10^2 terms
+    q = values * (wi[:, 2] * wo[:, 2])[:, None] if quantity == "f_cos" else values
+    assert max(info["residual_rms"]) < 100 * EPS * np.max(np.abs(q))
+
+
+def test_scalar_values_give_scalar_matrix(rng, unit_vectors):
+    zb = HemiZernike(2)
+    truth = _random_matrix(rng, zb, isotropic=True)
+    wi, wo = unit_vectors(60, upper=True), unit_vectors(60, upper=True)
+    cm = fit(wi, wo, truth.eval(wi, wo), zb)
+    assert cm.matrix.shape == (zb.size, zb.size) and len(cm.info["residual_rms"]) == 1
+    # cond ~ 1.3 here: rounding only
+    np.testing.assert_allclose(cm.matrix, truth.matrix, rtol=0, atol=1e-13)
+
+
+# -- weights, regularization, conditioning -----------------------------------------------------
+def _noisy_problem(rng, unit_vectors, n=400, basis=None):
+    basis = basis or HemiHarmonics(5)
+    truth = _random_matrix(rng, basis, isotropic=True, channels=2)
+    wi, wo = unit_vectors(n, upper=True), unit_vectors(n, upper=True)
+    values = truth.eval(wi, wo) + 0.1 * rng.normal(size=(n, 2))
+    return basis, wi, wo, values
+
+
+def test_info_against_numpy_svd(rng, unit_vectors):
+    basis, wi, wo, values = _noisy_problem(rng, unit_vectors)
+    w = rng.uniform(0.2, 3.0, size=wi.shape[0])
+    cm = fit(wi, wo, values, basis, weights=w, quantity="f_cos")
+    # independent reference: numpy's SVD and lstsq of the same weighted system
+    a = np.sqrt(w)[:, None] * design_matrix(wi, wo, basis)
+    y = np.sqrt(w)[:, None] * values * (wi[:, 2] * wo[:, 2])[:, None]
+    s = np.linalg.svd(a, compute_uv=False)
+    z, *_ = np.linalg.lstsq(a, y, rcond=None)
+    info = cm.info
+    assert info["method"] == "lstsq" and info["regularization"] == 0.0
+    assert info["rank"] == np.linalg.matrix_rank(a) == a.shape[1] == info["unknowns"]
+    assert info["samples"] == 400
+    # two LAPACK SVDs of the same matrix agree to a few eps relative in each singular value
+    assert info["condition_number"] == pytest.approx(s[0] / s[-1], rel=1e-12)
+    rms = np.sqrt(np.sum((a @ z - y) ** 2, axis=0) / np.sum(w))
+    # the residual of a well-conditioned (cond ~1.3) solve is stable to rounding
+    np.testing.assert_allclose(info["residual_rms"], rms, rtol=1e-10)
+    np.testing.assert_allclose(to_unknowns(cm), z, rtol=0, atol=1e-12)
+
+
+def test_zero_weights_equal_dropping(rng, unit_vectors):
+    basis, wi, wo, values = _noisy_problem(rng, unit_vectors)
+    w = rng.uniform(0.5, 2.0, size=wi.shape[0])
+    w[::3] = 0.0
+    keep = w > 0
+    a = fit(wi, wo, values, basis, weights=w)
+    b = fit(wi[keep], wo[keep], values[keep], basis, weights=w[keep])
+    # the same rows reach the same SVD: identical up to rounding
+    np.testing.assert_allclose(a.matrix, b.matrix, rtol=0, atol=1e-13)
+    assert a.info["samples"] == b.info["samples"] == int(keep.sum())
+
+
+def test_regularization_shrinks_and_matches_normal_equations(rng, unit_vectors):
+    basis, wi, wo, values = _noisy_problem(rng, unit_vectors)
+    lams = [0.0, 1e-4, 1e-2, 1.0, 1e2]
+    norms = []
+    a = design_matrix(wi, wo, basis)
+    for lam in lams:
+        cm = fit(wi, wo, values, basis, regularization=lam)
+        assert cm.info["regularization"] == lam
+        z = to_unknowns(cm)
+        norms.append(np.linalg.norm(cm.matrix))
+        # the unknowns' norm is the Frobenius norm of the dense M (documented penalty)
+        assert np.linalg.norm(z) == pytest.approx(norms[-1], rel=1e-13)
+        # independent reference: the augmented system [A; sqrt(lam) I] z = [y; 0] by lstsq
+        aug = np.vstack([a, np.sqrt(lam) * np.eye(a.shape[1])])
+        rhs = np.vstack([values, np.zeros((a.shape[1], values.shape[1]))])
+        ref, *_ = np.linalg.lstsq(aug, rhs, rcond=None)
+        # both solves are backward stable with cond(aug) < 2: rounding only
+        np.testing.assert_allclose(z, ref, rtol=0, atol=1e-12 * np.abs(ref).max())
+    # ||z(lam)|| decreases strictly with lam (sum of (s u.y / (s^2 + lam))^2 terms)
+    assert all(n1 > n2 for n1, n2 in zip(norms[:-1], norms[1:], strict=True)), norms
+
+
+def test_underdetermined_raises_with_numbers(unit_vectors):
+    zb = HemiZernike(8)
+    wi, wo = unit_vectors(30, upper=True), unit_vectors(30, upper=True)
+    with pytest.raises(ValueError, match=r"underdetermined: 30 samples .* for 55 unknowns "
+                                         r"\(isotropic HemiZernike\(8\)\); lower the order"):
+        fit(wi, wo, np.ones(30), zb)
+    with pytest.raises(ValueError, match=r"30 samples .* for 1035 unknowns \(general"):
+        fit(wi, wo, np.ones(30), zb, isotropic=False)
+    # with regularization the minimum-norm Tikhonov solution is returned, without a warning
+    cm = fit(wi, wo, np.ones(30), zb, regularization=1e-3)
+    assert cm.info["rank"] == 30 and cm.info["condition_number"] == np.inf
+
+
+def test_rank_deficient_warns(unit_vectors):
+    # every incident direction at the pole: only the m = 0 functions of w_i survive
+    zb = HemiZernike(4)
+    wo = unit_vectors(100, upper=True)
+    wi = np.tile([0.0, 0.0, 1.0], (100, 1))
+    rank = np.linalg.matrix_rank(design_matrix(wi, wo, zb))
+    assert rank < 14
+    with pytest.warns(RuntimeWarning, match=rf"rank-deficient: rank {rank} of 14 unknowns"):
+        cm = fit(wi, wo, np.ones(100), zb)
+    assert cm.info["rank"] == rank and cm.info["condition_number"] == np.inf
+    fit(wi, wo, np.ones(100), zb, regularization=1e-6)  # regularized: no warning
+
+
+def test_badly_conditioned_warns(monkeypatch, unit_vectors):
+    zb = HemiZernike(2)
+    wi, wo = unit_vectors(50, upper=True), unit_vectors(50, upper=True)
+    monkeypatch.setattr(fitmod, "COND_WARN", 1.0)  # every real fit exceeds condition 1
+    with pytest.warns(RuntimeWarning, match=r"badly conditioned: condition number \d"):
+        fit(wi, wo, np.ones(50), zb)
+
+
+# -- the seed's brick scenario -----------------------------------------------------------------
+def test_brick_scenario_order_8():
+    """Koenderink et al. fit brick at order 8 (isotropic) from the 40 x 40 face data.
+
+    Unknowns: 55 (the seed's "55 independent functions", = HelmholtzModes(8).size); the
+    seed's 66 counts data values, not unknowns (we find 96 distinct isotropic face-pair
+    classes on this tessellation; see tessellate_hemisphere). Measured here: condition number
+    82.2 of the face-centre design, relative residual 6e-5 for the brick-like BRDF.
+    """
+    t, wi, wo = _face_centre_pairs()
+    zb = HemiZernike(8)
+    values = brick_like(wi, wo)
+    cm = fit(wi, wo, values, zb)
+    info = cm.info
+    assert info["unknowns"] == 55 == HelmholtzModes(8).size and info["samples"] == 1600
+    assert info["rank"] == 55
+    s = np.linalg.svd(design_matrix(wi, wo, zb), compute_uv=False)
+    assert info["condition_number"] == pytest.approx(s[0] / s[-1], rel=1e-12)
+    # observed 82.2: well posed, so noise of the measurement is amplified at most ~100x
+    assert 10 < info["condition_number"] < 200
+    # a smooth BRDF is nearly order 8: observed rms 8.5e-6 against mean f 0.15
+    assert info["residual_rms"][0] < 1e-4 * np.mean(values)
+    # an exactly representable isotropic order-8 matrix is recovered from the same samples:
+    # error <= cond * eps * scale, with 100x for the sums (observed 2e-13 for scale ~ 6)
+    truth = _random_matrix(np.random.default_rng(8), zb, isotropic=True)
+    back = fit(wi, wo, truth.eval(wi, wo), zb)
+    scale = np.max(np.abs(truth.matrix))
+    np.testing.assert_allclose(back.matrix, truth.matrix, rtol=0,
+                               atol=100 * info["condition_number"] * EPS * scale)
+
+
+def test_brick_sampling_limits():
+    # what the 40-face sampling can resolve. Reciprocity: the design is symmetric in
+    # w_i <-> w_o, so the 1600 face pairs hold only 40 * 41 / 2 = 820 distinct rows (the
+    # seed's count), fewer than the 1035 unknowns of a general order-8 fit
+    t, wi, wo = _face_centre_pairs()
+    zb = HemiZernike(8)
+    np.testing.assert_array_equal(design_matrix(wi, wo, zb, isotropic=False),
+                                  design_matrix(wo, wi, zb, isotropic=False))
+    i, o = np.triu_indices(t.size)
+    with pytest.raises(ValueError, match=r"820 samples .* for 1035 unknowns \(general"):
+        fit(t.centroids[i], t.centroids[o], np.ones(i.size), zb, isotropic=False)
+    # isotropy: isotropic order 12 (140 unknowns) is capped by the 96 distinct isotropic
+    # face-pair classes (equal theta_i, theta_o, |phi_i - phi_o| up to exchange)
+    with pytest.warns(RuntimeWarning, match="rank-deficient: rank 96 of 140 unknowns"):
+        fit(wi, wo, brick_like(wi, wo), HemiZernike(12))
+
+
+def test_fit_from_binned_samples(rng):
+    # scattered samples binned onto the faces, fitted at the centroids with the counts as
+    # weights, equal the fit of every sample moved to its face centroid
+    t = tessellate_hemisphere()
+    n = 5000
+    wi = from_angles(np.arccos(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    wo = from_angles(np.arccos(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    values = np.stack([brick_like(wi, wo), 2 * brick_like(wi, wo)], axis=-1)
+    binned = bin_samples(wi, wo, values, t)
+    bi, bo, bv, bw = binned.samples()
+    cm = fit(bi, bo, bv, HemiZernike(8), weights=bw)
+    moved = fit(t.centroids[t.locate(wi)], t.centroids[t.locate(wo)], values, HemiZernike(8))
+    # same normal equations summed in a different order; cond ~ 1e2: rounding only
+    np.testing.assert_allclose(cm.matrix, moved.matrix, rtol=0, atol=1e-11)
+    assert cm.info["samples"] == int(np.count_nonzero(binned.counts))
+
+
+# -- tessellation -------------------------------------------------------------------------------
+def _girard_areas(t):
+    """Spherical excess from the corner angles (independent of Van Oosterom-Strackee)."""
+    v = t.vertices[t.faces]
+    angles = []
+    for k in range(3):
+        p, q, r = v[:, k], v[:, (k + 1) % 3], v[:, (k + 2) % 3]
+        tq = q - p * np.sum(p * q, axis=1, keepdims=True)
+        tr = r - p * np.sum(p * r, axis=1, keepdims=True)
+        cosang = np.sum(tq * tr, axis=1) / np.linalg.norm(tq, axis=1) / np.linalg.norm(tr, axis=1)
+        angles.append(np.arccos(cosang))
+    return sum(angles) - np.pi
+
+
+def test_tessellation_has_40_faces_of_near_equal_area():
+    t = tessellate_hemisphere()
+    assert t.size == 40 and t.faces.shape == (40, 3) and t.centroids.shape == (40, 3)
+    # 40 arctan2 terms of O(0.15) each: a few eps of 2 pi
+    assert t.solid_angles.sum() == pytest.approx(2 * np.pi, abs=1e-13)
+    # Girard's excess loses digits in arccos near 60 degrees: 1e-12 is its rounding level
+    np.testing.assert_allclose(t.solid_angles, _girard_areas(t), rtol=0, atol=1e-12)
+    # 30 corner faces and 10 central faces; the spread documented in the docstring
+    assert np.unique(np.round(t.solid_angles, 10)).size == 2
+    assert t.solid_angles.max() / t.solid_angles.min() == pytest.approx(1.20313, abs=1e-5)
+    assert np.all(t.centroids[:, 2] > 0)
+    np.testing.assert_allclose(np.linalg.norm(t.centroids, axis=1), 1.0, rtol=0, atol=1e-15)
+    # every face counter-clockwise from outside, and no face below the equator
+    v = t.vertices[t.faces]
+    assert np.all(np.einsum("fj,fj->f", np.cross(v[:, 0], v[:, 1]), v[:, 2]) > 0)
+    assert np.all(t.vertices[:, 2] >= 0)
+    # the equator: 10 vertices (midpoints of the icosahedron's ring-to-ring edges), 10 edges
+    on = t.vertices[t.faces][..., 2] == 0
+    assert np.sum(t.vertices[:, 2] == 0) == 10 and np.sum(on.sum(axis=1) == 2) == 10
+    np.testing.assert_array_equal(t.locate(t.centroids), np.arange(40))
+
+
+def test_tessellation_covers_the_hemisphere(rng):
+    # uniform directions fall in each face in proportion to its solid angle
+    t = tessellate_hemisphere()
+    n = 100_000
+    d = from_angles(np.arccos(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    face = t.locate(d)
+    frac = np.bincount(face, minlength=40) / n
+    p = t.solid_angles / (2 * np.pi)
+    # binomial: 5 sigma per face (40 faces: false-alarm rate ~ 2e-5 for a fresh seed)
+    np.testing.assert_array_less(np.abs(frac - p), 5 * np.sqrt(p * (1 - p) / n))
+    # each direction lies inside its face's three edge planes (rounding only)
+    v = t.vertices[t.faces[face]]
+    for k in range(3):
+        side = np.einsum("nj,nj->n", np.cross(v[:, k], v[:, (k + 1) % 3]), d)
+        assert side.min() > -1e-15
+
+
+def test_tessellation_refinement_and_errors():
+    for k, faces in ((2, 160), (3, 640)):
+        t = tessellate_hemisphere(k)
+        assert t.size == faces
+        assert t.solid_angles.sum() == pytest.approx(2 * np.pi, abs=1e-12)  # rounding
+    with pytest.raises(ValueError, match="subdivisions must be >= 1"):
+        tessellate_hemisphere(0)
+    with pytest.raises(TypeError, match="subdivisions must be an integer"):
+        tessellate_hemisphere(1.0)
+
+
+# -- binning ------------------------------------------------------------------------------------
+def test_bin_samples_against_loop(rng, unit_vectors):
+    t = tessellate_hemisphere()
+    n = 3000
+    wi, wo = unit_vectors(n, upper=True), unit_vectors(n, upper=True)
+    values = rng.uniform(0, 1, size=(n, 3))
+    b = bin_samples(wi, wo, values)
+    fi, fo = t.locate(wi), t.locate(wo)
+    sums, counts = np.zeros((40, 40, 3)), np.zeros((40, 40), dtype=int)
+    for k in range(n):  # the obvious reference
+        sums[fi[k], fo[k]] += values[k]
+        counts[fi[k], fo[k]] += 1
+    np.testing.assert_array_equal(b.counts, counts)
+    full = counts > 0
+    np.testing.assert_allclose(b.mean[full], sums[full] / counts[full][:, None], rtol=1e-14)
+    assert np.all(np.isnan(b.mean[~full]))
+    assert b.counts.sum() == n
+    with pytest.raises(TypeError, match="tessellation must be a Tessellation"):
+        bin_samples(wi, wo, values[:, 0], tessellation="icosahedron")
+
+
+# -- input errors -------------------------------------------------------------------------------
+def test_fit_input_errors(unit_vectors, monkeypatch):
+    zb = HemiZernike(2)
+    wi, wo = unit_vectors(20, upper=True), unit_vectors(20, upper=True)
+    v = np.ones(20)
+    bad_v = v.copy()
+    bad_v[3] = np.nan
+    below = wo.copy()
+    below[5, 2] = -below[5, 2] - 0.1
+    below[5] /= np.linalg.norm(below[5])
+    cases = [
+        (ValueError, r"values must be finite: 1 entries are NaN or inf \(first at sample 3\)",
+         dict(values=bad_v)),
+        (ValueError, r"values must have shape \(20,\) or \(20, channels\)",
+         dict(values=np.ones(19))),
+        (ValueError, r"wo must have the shape of wi \(20, 3\), got shape \(19, 3\)",
+         dict(wo=wo[:19])),
+        (ValueError, r"wo must lie in the upper hemisphere", dict(wo=below)),
+        (ValueError, r"weights must be >= 0, got min -1", dict(weights=-np.ones(20))),
+        (ValueError, r"weights must have shape \(20,\)", dict(weights=np.ones(3))),
+        (ValueError, r"weights must not all be zero", dict(weights=np.zeros(20))),
+        (ValueError, r"weights must be finite", dict(weights=np.full(20, np.inf))),
+        (ValueError, r"regularization must be finite and >= 0", dict(regularization=-1.0)),
+        (TypeError, r"regularization must be a number", dict(regularization="a lot")),
+        (ValueError, r"quantity must be one of 'f', 'f_cos'", dict(quantity="g")),
+        (TypeError, r"isotropic must be True or False", dict(isotropic="yes")),
+        (ValueError, r"basis must be a hemisphere basis .* SphericalHarmonics\(2\)",
+         dict(basis=SphericalHarmonics(2))),
+        (TypeError, r"basis must be a basis object", dict(basis="zernike")),
+        (ValueError, r"wi must have shape \(n, 3\), got shape \(3,\)",
+         dict(wi=[0, 0, 1.0], wo=[0, 0, 1.0])),
+    ]
+    for exc, match, kw in cases:
+        args = dict(wi=wi, wo=wo, values=v, basis=zb) | kw
+        with pytest.raises(exc, match=match):
+            fit(args.pop("wi"), args.pop("wo"), args.pop("values"), args.pop("basis"), **args)
+    monkeypatch.setattr("basis._validate.MAX_BYTES", 1000)
+    with pytest.raises(MemoryError, match=r"fitting 5 unknowns to 20 samples"):
+        fit(wi, wo, v, zb)
+
+
+# -- tables -------------------------------------------------------------------------------------
+def test_read_table_round_trip(tmp_path, rng):
+    n = 12
+    ang = np.column_stack([rng.uniform(0, 90, n), rng.uniform(-180, 360, n),
+                           rng.uniform(0, 90, n), rng.uniform(0, 360, n)])
+    ang[0, 0], ang[1, 2] = 90.0, 0.0  # the horizon and the pole are in range
+    rgb = rng.uniform(0, 2, size=(n, 3))
+    lines = ["# theta_i phi_i theta_o phi_o r g b (degrees, 1/sr)", ""]
+    for k in range(n):
+        cells = [repr(float(x)) for x in (*ang[k], *rgb[k])]
+        lines.append(", ".join(cells) if k % 2 else "  ".join(cells) + "  # a remark")
+    path = tmp_path / "rgb.txt"
+    path.write_text("\n".join(lines) + "\n")
+    wi, wo, values = read_table(path)
+    rad = np.radians(ang)
+    # repr() round-trips floats exactly; the degree conversion is the only rounding
+    np.testing.assert_allclose(wi, from_angles(rad[:, 0], rad[:, 1]), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(wo, from_angles(rad[:, 2], rad[:, 3]), rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(values, rgb)
+    one = tmp_path / "one.csv"
+    one.write_text("0,0,45,180,0.25\n30,10,60,20,0.5\n")
+    wi, wo, values = read_table(one)
+    assert values.shape == (2,) and values.tolist() == [0.25, 0.5]
+    np.testing.assert_allclose(wo[0], [-np.sqrt(0.5), 0.0, np.sqrt(0.5)], rtol=0, atol=1e-15)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("0 0 0 0 1 2\n", r"line 1: a row must have 5 columns .* or 7 .* got 6"),
+    ("0 0 0 0 1\n0 0 0 0 1 2 3\n", r"line 2: every row must have 5 columns like the first, got 7"),
+    ("theta_i phi_i theta_o phi_o f\n", r"line 1, column 1: cell must be a number, got "
+                                         r"'theta_i' \(comment out header lines"),
+    ("# header\n0,0,0,,1\n", r"line 2, column 4: cell must be a number, got ''"),
+    ("0 0 0 0 nan\n", r"line 1, column 5: cell must be finite, got 'nan'"),
+    ("95 0 0 0 1\n", r"line 1: theta_i must lie in \[0, 90\] degrees, got 95"),
+    ("0 0 -1 0 1\n", r"line 1: theta_o must lie in \[0, 90\] degrees, got -1"),
+    ("# nothing\n\n", r"must hold at least one data row"),
+])
+def test_read_table_errors(tmp_path, text, match):
+    path = tmp_path / "bad.txt"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=match):
+        read_table(path)
