@@ -1,0 +1,29 @@
+"""Where BRDFs come from and how they become coefficients.
+
+- :mod:`project.models`: analytic BRDFs (Lambert, Phong, Ward, Cook-Torrance, ...).
+- :mod:`project.measured`: MERL files.
+- :func:`project.project`: quadrature (or Monte Carlo, or least-squares) projection.
+- :func:`project.fit`: least squares for scattered measurements.
+
+Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
+"""
+
+from . import measured, models
+from .brdf import BRDF, MirrorDelta
+from .lstsq import bin_samples, fit, read_table, tessellate_hemisphere
+from .quadrature import project, radial_table, tail_fraction, truncation_error
+
+__all__ = [
+    "BRDF",
+    "MirrorDelta",
+    "bin_samples",
+    "fit",
+    "measured",
+    "models",
+    "project",
+    "radial_table",
+    "read_table",
+    "tail_fraction",
+    "tessellate_hemisphere",
+    "truncation_error",
+]

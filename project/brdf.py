@@ -17,7 +17,7 @@ from basis._validate import as_directions, check_bytes
 from basis.modes import broadcast_batch
 from basis.quadrature import hemisphere_rule
 
-__all__ = ["BRDF", "MirrorDelta", "as_color"]
+__all__ = ["BRDF", "MirrorDelta", "as_color", "broadcast_channels"]
 
 
 def as_color(value: ArrayLike, name: str, *, low: float | None = 0.0,

@@ -1,13 +1,14 @@
-"""project.fit: least-squares fits of scattered samples (design matrix against the Helmholtz
-modes, recovery of known coefficients, weights, regularization, conditioning against numpy's
-SVD), the seed's brick scenario on the 40-face tessellation, binning and table reading."""
+"""project.fit (module project.lstsq): least-squares fits of scattered samples (design matrix
+against the Helmholtz modes, recovery of known coefficients, weights, regularization,
+conditioning against numpy's SVD), the seed's brick scenario on the 40-face tessellation,
+binning and table reading."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-import project.fit as fitmod
+import project.lstsq as fitmod
 from basis import (
     CoefficientMatrix,
     HelmholtzModes,
@@ -16,7 +17,7 @@ from basis import (
     SphericalHarmonics,
     from_angles,
 )
-from project.fit import (
+from project.lstsq import (
     bin_samples,
     design_matrix,
     fit,

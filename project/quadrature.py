@@ -1,0 +1,513 @@
+"""Projection of a BRDF onto a basis: M_jk = int int q(w_i, w_o) b_j(w_i) b_k(w_o) dw_i dw_o.
+
+Every basis function separates as b_k(theta, phi) = P_k(cos theta) A_k(phi) with
+A_k = cos(m phi), sin(|m| phi) or 1, so the double integral is a product rule: Gauss-Legendre
+in z = cos(theta) for each direction and the uniform rule in azimuth, whose azimuthal sums
+are Fourier transforms.
+
+Isotropic BRDFs depend on the azimuths through dphi = phi_i - phi_o only, and evenly. With
+F_m(z_i, z_o) = int_0^{2 pi} q cos(m dphi) d dphi the matrix is block diagonal by m:
+
+    M^(m) = c_m P_m^T W F_m W P_m,     c_0 = 2 pi, c_m = pi (m > 0),
+
+P_m the (nodes, k_m) table of the radial factors with azimuthal order m and W the z weights.
+The samples form a (z_i, z_o, dphi) grid; since q is even in dphi and (when reciprocal)
+symmetric in (z_i, z_o), only half of each is evaluated, and F_m is a DCT-I. That is
+O(N^2 N_phi) evaluations and O(N^3) arithmetic instead of the O(N^4) of a dense product rule.
+
+Anisotropic BRDFs use the full (z_i, phi_i, z_o, phi_o) grid with real Fourier transforms in
+both azimuths, processed a few z_i nodes at a time so memory stays bounded.
+
+The node counts start from the order and double until two successive results differ by less
+than the tolerance; that difference is returned as the error estimate (a conservative one,
+since the finer result is returned).
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+import scipy.fft
+from numpy.typing import NDArray
+from scipy.special import roots_legendre
+
+from basis import Basis, CoefficientMatrix
+from basis._validate import check_bytes, choice, nonneg_int
+
+__all__ = ["project", "radial_table"]
+
+#: Pairs evaluated per call of ``brdf.eval``: bounds the memory of one chunk (~100 MB for RGB).
+CHUNK = 1 << 21
+
+#: Relative L2 truncation error above which ``project`` warns that the BRDF is too sharp for
+#: the order (the truncated expansion rings and overshoots).
+GIBBS_ERROR = 0.1
+
+
+def project(
+    brdf: Any,
+    basis: Basis,
+    *,
+    quantity: str = "f_cos",
+    method: str = "quadrature",
+    tol: float = 1e-8,
+    isotropic: bool | None = None,
+    nodes: tuple[int, int] | None = None,
+    max_nodes: int = 512,
+    samples: int | None = None,
+    seed: int = 0,
+) -> CoefficientMatrix:
+    """Coefficient matrix of a BRDF in a basis (the L2 projection onto the basis products).
+
+    Parameters
+    ----------
+    brdf : BRDF
+        Any object with ``eval(wi, wo)``, ``channels`` and ``isotropic`` (DESIGN.md); ideal
+        mirror terms listed in ``brdf.delta`` are projected in closed form.
+    basis : basis.Basis
+        ``HemiZernike``, ``HemiHarmonics`` or ``SphericalHarmonics`` (for the full sphere the
+        BRDF is zero below the horizon, so only the upper hemisphere is integrated).
+    quantity : {"f_cos", "f"}
+        What the matrix represents: f cos(theta_i) cos(theta_o) (default, Westin's choice:
+        bounded at grazing, mirror terms have finite coefficients) or f.
+    method : {"quadrature", "montecarlo", "lstsq"}
+        ``"quadrature"``: the product rule above, refined by doubling until converged.
+        ``"montecarlo"``: scrambled Sobol points in (z_i, phi_i, z_o, phi_o), for BRDFs that
+        are expensive to evaluate; the error estimate is the standard error over 8
+        independent scrambles. ``"lstsq"``: a least-squares fit (:func:`project.fit`) to the
+        BRDF sampled at Sobol pairs, twice as many as there are unknowns unless ``samples``
+        says otherwise. Sobol counts are rounded up to a power of two.
+    tol : float
+        Quadrature only: target for the estimated max |error| of the coefficients, relative
+        to max |M|.
+    isotropic : bool or None
+        Treat the BRDF as isotropic (a function of |phi_i - phi_o|). None: ``brdf.isotropic``.
+    nodes : (n_z, n_phi), optional
+        Quadrature only: use this rule (nodes in z per direction, in azimuth) once, with no
+        refinement; the error estimate then compares with the rule of half the size.
+    max_nodes : int
+        Quadrature only: refinement stops (with a warning) when ``n_z`` would exceed this.
+    samples : int, optional
+        Monte Carlo and least squares: number of direction pairs (Monte Carlo default
+        2**16 per scramble).
+    seed : int
+        Seed of the Sobol scrambles.
+
+    Returns
+    -------
+    CoefficientMatrix
+        Isotropic block form for isotropic BRDFs. ``info`` holds ``method``, ``nodes``,
+        ``evaluations``, ``error_estimate`` (absolute, max over entries), ``rel_error``,
+        ``converged``, ``truncation_error`` (relative L2 error of the truncated expansion
+        against the BRDF itself, by Parseval; None with mirror terms, whose norm is
+        infinite), ``tail_fraction`` (relative RMS of the coefficients of the last two
+        degrees), ``seconds`` and, for non-reciprocal BRDFs, ``asymmetry``
+        (max |M - M^T| / max |M| before symmetrising).
+
+    Warns
+    -----
+    RuntimeWarning
+        When the quadrature did not reach ``tol`` within ``max_nodes`` nodes, or when the
+        truncated expansion misses more than 10 % of the BRDF's L2 norm (the BRDF is too
+        sharp for the order: expect Gibbs ringing; raise the order or filter).
+
+    Raises
+    ------
+    ValueError
+        For ``quantity="f"`` with mirror (delta) terms: their coefficients diverge.
+
+    Examples
+    --------
+    Lambert with albedo 0.5 in Westin's form is one coefficient, 2a/3 on b_10:
+
+    >>> from basis import HemiHarmonics
+    >>> from project.models import Lambert
+    >>> cm = project(Lambert(0.5), HemiHarmonics(3))
+    >>> k = cm.basis.index(1, 0)
+    >>> round(float(cm.matrix[k, k]), 12), cm.info["error_estimate"] < 1e-14
+    (0.333333333333, True)
+    """
+    t0 = time.perf_counter()
+    _check_brdf(brdf)
+    if not isinstance(basis, Basis):
+        raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
+                        f"{type(basis).__name__}")
+    quantity = choice(quantity, "quantity", ("f_cos", "f"))
+    method = choice(method, "method", ("quadrature", "montecarlo", "lstsq"))
+    iso = bool(brdf.isotropic) if isotropic is None else bool(isotropic)
+    deltas = tuple(getattr(brdf, "delta", ()) or ())
+    if deltas and quantity == "f":
+        raise ValueError("quantity must be 'f_cos' for a BRDF with mirror (delta) terms: with "
+                         "quantity='f' their coefficients int b_j b_k / cos(theta) diverge")
+    if not (isinstance(tol, float | int) and 0 < tol < 1):
+        raise ValueError(f"tol must be a number in (0, 1), got {tol!r}")
+
+    if method == "quadrature":
+        blocks_or_dense, info = _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes)
+    elif method == "montecarlo":
+        blocks_or_dense, info = _montecarlo(brdf, basis, quantity, iso, samples, seed)
+    else:
+        return _lstsq(brdf, basis, quantity, iso, samples, seed, t0)
+
+    scalar = _is_scalar(brdf)
+    if deltas:
+        blocks_or_dense = _add_deltas(blocks_or_dense, deltas, basis, iso)
+    if iso:
+        blocks = [b[..., 0] if scalar else np.moveaxis(b, -1, 0) for b in blocks_or_dense]
+        cm = CoefficientMatrix.from_blocks(basis, blocks, quantity)
+    else:
+        m = blocks_or_dense
+        scale = float(np.max(np.abs(m))) or 1.0
+        info["asymmetry"] = float(np.max(np.abs(m - m.swapaxes(0, 1)))) / scale
+        m = m[..., 0] if scalar else np.moveaxis(m, -1, 0)
+        cm = CoefficientMatrix(basis, m, quantity, symmetrize=True, isotropic=False)
+    norm2 = info.pop("norm2")
+    trunc = None if deltas else truncation_error(cm, norm2)
+    info.update(tail_fraction=tail_fraction(cm), truncation_error=trunc,
+                seconds=time.perf_counter() - t0, source=repr(brdf), quantity=quantity)
+    cm.info.update(info)
+    if trunc is not None and trunc > GIBBS_ERROR:
+        warnings.warn(f"the expansion of {brdf!r} in {basis!r} misses {100 * trunc:.3g} % of "
+                      "its L2 norm: the BRDF is too sharp for the order (expect Gibbs ringing) "
+                      "or ill suited to the basis (e.g. quantity='f' in odd harmonics); raise "
+                      "the order, filter (compress.smooth) or change the basis or quantity",
+                      RuntimeWarning, stacklevel=2)
+    return cm
+
+
+def _check_brdf(brdf: Any) -> None:
+    for attr in ("eval", "channels", "isotropic"):
+        if not hasattr(brdf, attr):
+            raise TypeError(f"brdf must have eval(wi, wo), channels and isotropic (see "
+                            f"project.brdf.BRDF); {type(brdf).__name__} has no {attr!r}")
+
+
+def _is_scalar(brdf: Any) -> bool:
+    """True when brdf.eval returns (...) rather than (..., channels)."""
+    v = np.asarray(brdf.eval(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0])))
+    return v.ndim == 0
+
+
+def _eval_pairs(brdf: Any, wi: NDArray, wo: NDArray, channels: int) -> NDArray[np.float64]:
+    """brdf values at (n, 3) pairs as (n, channels), checked finite."""
+    v = np.asarray(brdf.eval(wi, wo), dtype=np.float64).reshape(wi.shape[0], channels)
+    if not np.all(np.isfinite(v)):
+        raise ValueError(f"{brdf!r} returned non-finite values at {int(np.sum(~np.isfinite(v)))}"
+                         " sample pairs; the model is not defined everywhere on the hemisphere")
+    return v
+
+
+# -- the radial factors -----------------------------------------------------------------------
+def radial_table(basis: Basis, z: NDArray[np.float64]) -> NDArray[np.float64]:
+    """P_k(z) for every basis function: b_k(theta, phi) = P_k(cos theta) A_k(phi).
+
+    Parameters
+    ----------
+    basis : basis.Basis
+    z : (n,) array of float in [-1, 1]
+
+    Returns
+    -------
+    (n, size) ndarray
+        Evaluated at the azimuth where A_k = 1 (phi = 0 for cos and zonal functions,
+        pi / (2 |m|) for sin(|m| phi)).
+    """
+    z = np.asarray(z, dtype=np.float64)
+    s = np.sqrt(np.maximum(0.0, (1.0 - z) * (1.0 + z)))
+    az = basis.azimuthal
+    out = np.empty((z.size, basis.size))
+    for m in np.unique(np.where(az < 0, az, 0)):  # 0 covers cos and zonal; m < 0 each sin order
+        phi = 0.0 if m == 0 else np.pi / (2 * -m)
+        d = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+        cols = az >= 0 if m == 0 else az == m
+        out[:, cols] = basis.eval(d)[:, cols]
+    return out
+
+
+def _top(az: NDArray) -> int:
+    """Highest azimuthal order present (blocks run over m = 0..top)."""
+    return int(np.max(np.abs(az)))
+
+
+def _gauss_z(n: int) -> tuple[NDArray, NDArray]:
+    t, w = roots_legendre(n)
+    return 0.5 * (t + 1.0), 0.5 * w
+
+
+# -- quadrature -------------------------------------------------------------------------------
+def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes):
+    order = basis.order
+    step = _iso_rule if iso else _aniso_rule
+    if nodes is not None:
+        nz, nphi = (nonneg_int(v, "nodes") for v in nodes)
+        if nz < 1 or nphi < 2 * order + 2:
+            raise ValueError(f"nodes must be (n_z >= 1, n_phi >= 2 * order + 2 = {2 * order + 2}"
+                             f"), got {tuple(nodes)}")
+        fine, ev1, norm2 = step(brdf, basis, quantity, nz, nphi + nphi % 2)
+        coarse, ev0, _ = step(brdf, basis, quantity, max(1, nz // 2),
+                              max(2 * order + 2, nphi // 2 + (nphi // 2) % 2))
+        err, scale = _diff(fine, coarse)
+        return fine, dict(method="quadrature", nodes=(nz, nphi), evaluations=ev0 + ev1,
+                          error_estimate=err, rel_error=err / scale,
+                          converged=err <= tol * scale, norm2=norm2)
+    max_nodes = nonneg_int(max_nodes, "max_nodes")
+    nz, nphi = max(order + 2, 4), 2 * order + 2
+    prev, evals, _ = step(brdf, basis, quantity, nz, nphi)
+    while True:
+        nz, nphi = 2 * nz, 2 * nphi
+        cur, ev, norm2 = step(brdf, basis, quantity, nz, nphi)
+        evals += ev
+        err, scale = _diff(cur, prev)
+        if err <= tol * scale or 2 * nz > max_nodes:
+            break
+        prev = cur
+    converged = err <= tol * scale
+    if not converged:
+        warnings.warn(f"projection of {brdf!r} onto {basis!r} did not reach tol = {tol:.3g}: "
+                      f"estimated relative error {err / scale:.3g} with {nz} x {nphi} nodes "
+                      f"(max_nodes = {max_nodes}); the BRDF is sharper than the rule resolves: "
+                      "raise max_nodes or accept the error", RuntimeWarning, stacklevel=3)
+    return cur, dict(method="quadrature", nodes=(nz, nphi), evaluations=evals,
+                     error_estimate=err, rel_error=err / scale, converged=converged,
+                     norm2=norm2)
+
+
+def _diff(a, b) -> tuple[float, float]:
+    if isinstance(a, list):
+        err = max(float(np.max(np.abs(x - y), initial=0.0)) for x, y in zip(a, b, strict=True))
+        scale = max(float(np.max(np.abs(x), initial=0.0)) for x in a)
+    else:
+        err, scale = float(np.max(np.abs(a - b))), float(np.max(np.abs(a)))
+    return err, (scale if scale > 0 else 1.0)
+
+
+def _iso_rule(brdf, basis, quantity, nz, nphi):
+    """Isotropic blocks [(k_m, k_m, channels)] with nz Gauss nodes and nphi azimuths."""
+    z, wz = _gauss_z(nz)
+    half = nphi // 2
+    dphi = 2.0 * np.pi * np.arange(half + 1) / nphi  # [0, pi]: q is even in dphi
+    ch = int(brdf.channels)
+    reciprocal = bool(getattr(brdf, "reciprocal", True))
+    ia, ib = np.triu_indices(nz) if reciprocal else np.indices((nz, nz)).reshape(2, -1)
+    check_bytes(8.0 * ia.size * (half + 1) * (ch + 6), f"sampling {brdf!r} on {nz}^2 x "
+                f"{half + 1} nodes")
+    st = np.sqrt((1.0 - z) * (1.0 + z))
+    q = np.empty((ia.size, half + 1, ch))
+    rows = max(1, CHUNK // (half + 1))
+    for s in range(0, ia.size, rows):
+        a, b = ia[s:s + rows], ib[s:s + rows]
+        wi = np.zeros((a.size, half + 1, 3))
+        wi[..., 0] = st[a, None]
+        wi[..., 2] = z[a, None]
+        wo = np.empty((a.size, half + 1, 3))
+        wo[..., 0] = st[b, None] * np.cos(dphi)
+        wo[..., 1] = -st[b, None] * np.sin(dphi)
+        wo[..., 2] = z[b, None]
+        v = _eval_pairs(brdf, wi.reshape(-1, 3), wo.reshape(-1, 3), ch)
+        q[s:s + rows] = v.reshape(a.size, half + 1, ch)
+    if quantity == "f_cos":
+        q *= (z[ia] * z[ib])[:, None, None]
+    # ||q||^2 = sum_ab wz_a wz_b 2 pi int q^2 d dphi, off-diagonal pairs twice when folded
+    pair_w = wz[ia] * wz[ib] * (np.where(ia == ib, 1.0, 2.0) if reciprocal else 1.0)
+    even = np.full(half + 1, 2.0)
+    even[[0, -1]] = 1.0
+    norm2 = 2.0 * np.pi * (2.0 * np.pi / nphi) * np.einsum("a,s,asc->c", pair_w, even, q * q)
+    # F_m = (2 pi / nphi) DCT-I over dphi (x_0 + (-1)^m x_half + 2 sum cos)
+    fm = scipy.fft.dct(q, type=1, axis=1) * (2.0 * np.pi / nphi)
+    full = np.empty((nz, nz, half + 1, ch))
+    full[ia, ib] = fm
+    if reciprocal:
+        full[ib, ia] = fm
+    p = radial_table(basis, z) * wz[:, None]
+    az = basis.azimuthal
+    blocks = []
+    for m in range(_top(az) + 1):
+        pm = p[:, az == m]
+        c = 2.0 * np.pi if m == 0 else np.pi
+        blocks.append(c * np.einsum("aj,abc,bk->jkc", pm, full[:, :, m], pm, optimize=True))
+    return blocks, ia.size * (half + 1), norm2
+
+
+def _aniso_rule(brdf, basis, quantity, nz, nphi):
+    """Dense (size, size, channels) matrix from the full 4-D product rule."""
+    z, wz = _gauss_z(nz)
+    phi = 2.0 * np.pi * np.arange(nphi) / nphi
+    ch = int(brdf.channels)
+    st = np.sqrt((1.0 - z) * (1.0 + z))
+    grid = np.stack([st[:, None] * np.cos(phi), st[:, None] * np.sin(phi),
+                     np.broadcast_to(z[:, None], (nz, nphi))], axis=-1)  # (nz, nphi, 3)
+    az = basis.azimuthal
+    order = basis.order
+    sidx = az + order  # signed azimuthal -> 0..2 order
+    wp = radial_table(basis, z) * wz[:, None]  # (nz, size)
+    mat = np.zeros((basis.size, basis.size, ch))
+    norm2 = np.zeros(ch)
+    per = nphi * nz * nphi
+    check_bytes(8.0 * per * (ch + 6), f"sampling {brdf!r} on the 4-D rule")
+    rows = max(1, CHUNK // per)
+    for s in range(0, nz, rows):
+        a = np.arange(s, min(nz, s + rows))
+        wi = np.broadcast_to(grid[a][:, :, None, None, :], (a.size, nphi, nz, nphi, 3))
+        wo = np.broadcast_to(grid[None, None], (a.size, nphi, nz, nphi, 3))
+        q = _eval_pairs(brdf, wi.reshape(-1, 3), wo.reshape(-1, 3), ch)
+        q = q.reshape(a.size, nphi, nz, nphi, ch)
+        if quantity == "f_cos":
+            q *= (z[a][:, None, None, None, None] * z[None, None, :, None, None])
+        norm2 += (2.0 * np.pi / nphi) ** 2 * np.einsum("a,b,asbtc->c", wz[a], wz, q * q)
+        t = _azimuthal_transform(_azimuthal_transform(q, 1, order, nphi), 3, order, nphi)
+        # t: (a, 2 order + 1, nz, 2 order + 1, ch); contract z_o then z_i
+        x = np.einsum("asbkc,bk->askc", t[:, :, :, sidx], wp, optimize=True)
+        mat += np.einsum("aj,ajkc->jkc", wp[a], x[:, sidx], optimize=True)
+    return mat, nz * nphi * nz * nphi, norm2
+
+
+def _azimuthal_transform(q: NDArray, axis: int, order: int, nphi: int) -> NDArray:
+    """int q A_m(phi) dphi for signed m = -order..order along ``axis`` (uniform rule)."""
+    f = scipy.fft.rfft(q, axis=axis) * (2.0 * np.pi / nphi)
+    f = np.moveaxis(f, axis, 0)[:order + 1]
+    out = np.concatenate([-f[1:][::-1].imag, f.real], axis=0)  # sin for m < 0, cos for m >= 0
+    return np.moveaxis(out, 0, axis)
+
+
+# -- mirror terms -----------------------------------------------------------------------------
+def _add_deltas(blocks_or_dense, deltas, basis, iso):
+    """Add int_H R(z) b_j(w) b_k(mirror w) z dw for each MirrorDelta (isotropic blocks).
+
+    b_k(mirror w) = (-1)^m b_k(w) since mirror turns phi into phi + pi; the azimuthal
+    integral of A_j A_k is pi (m > 0) or 2 pi (m = 0) when they match, 0 otherwise. With a
+    constant R the integrand is a polynomial in z for HemiZernike (exact with
+    order/2 + 2 nodes); for HemiHarmonics or an angle-dependent R the rule is refined by
+    doubling to rounding level.
+    """
+    order = basis.order
+    az = basis.azimuthal
+    out = blocks_or_dense
+    for d in deltas:
+        n, prev = order + 4, None
+        while True:
+            z, wz = _gauss_z(n)
+            r = d.reflectance(z)  # (n, channels)
+            p = radial_table(basis, z)
+            blocks = []
+            for m in range(_top(az) + 1):
+                pm = p[:, az == m]
+                c = (2.0 * np.pi if m == 0 else np.pi) * (-1.0) ** m
+                blocks.append(c * np.einsum("aj,ac,ak->jkc", pm, (wz * z)[:, None] * r, pm))
+            if prev is not None and _diff(blocks, prev)[0] <= 1e-14 * _diff(blocks, prev)[1]:
+                break
+            if n > 4096:
+                warnings.warn(f"the mirror term {d!r} converged only to "
+                              f"{_diff(blocks, prev)[0]:.3g}", RuntimeWarning, stacklevel=3)
+                break
+            prev, n = blocks, 2 * n
+        if iso:
+            out = [o + b for o, b in zip(out, blocks, strict=True)]
+        else:
+            dense = np.zeros_like(out)
+            for m, b in enumerate(blocks):
+                for sign in ((1, -1) if m else (1,)):
+                    idx = np.flatnonzero(az == sign * m)
+                    dense[idx[:, None], idx] = b
+            out = out + dense
+    return out
+
+
+# -- Monte Carlo and least squares ------------------------------------------------------------
+def _sobol_pairs(n: int, seed: int) -> tuple[NDArray, NDArray]:
+    """2^ceil(log2 n) direction pairs, uniform in solid angle on H x H, from a scrambled Sobol
+    sequence (a power of two keeps the balance properties of the points)."""
+    from scipy.stats import qmc
+
+    u = qmc.Sobol(d=4, scramble=True, seed=seed).random_base2(max(1, int(n - 1).bit_length()))
+    return _uniform_hemisphere(u[:, 0], u[:, 1]), _uniform_hemisphere(u[:, 2], u[:, 3])
+
+
+def _uniform_hemisphere(u: NDArray, v: NDArray) -> NDArray:
+    z = u
+    s = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+    phi = 2.0 * np.pi * v
+    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
+
+
+def _montecarlo(brdf, basis, quantity, iso, samples, seed):
+    n = 1 << 16 if samples is None else nonneg_int(samples, "samples")
+    if n < 2:
+        raise ValueError(f"samples must be >= 2 for method='montecarlo', got {n}")
+    ch = int(brdf.channels)
+    reps = 8
+    ests = []
+    for r in range(reps):
+        wi, wo = _sobol_pairs(n, np.random.SeedSequence([seed, r]).generate_state(1)[0])
+        n = wi.shape[0]
+        acc = np.zeros((basis.size, basis.size, ch))
+        sq = np.zeros(ch)
+        for s in range(0, n, CHUNK // 8):
+            a, b = wi[s:s + CHUNK // 8], wo[s:s + CHUNK // 8]
+            q = _eval_pairs(brdf, a, b, ch)
+            if quantity == "f_cos":
+                q = q * (a[:, 2] * b[:, 2])[:, None]
+            bi, bo = basis.eval(a), basis.eval(b)
+            acc += np.einsum("nj,nc,nk->jkc", bi, q, bo, optimize=True)
+            sq += np.sum(q * q, axis=0)
+        norm2 = sq * (2.0 * np.pi) ** 2 / n
+        est = acc * (2.0 * np.pi) ** 2 / n
+        ests.append(0.5 * (est + est.swapaxes(0, 1)))
+    ests = np.array(ests)
+    mean = ests.mean(axis=0)
+    stderr = ests.std(axis=0, ddof=1) / np.sqrt(reps)
+    scale = float(np.max(np.abs(mean))) or 1.0
+    info = dict(method="montecarlo", samples=n * reps, evaluations=n * reps,
+                error_estimate=float(np.max(stderr)), rel_error=float(np.max(stderr)) / scale,
+                converged=True, standard_error=stderr, norm2=norm2)
+    if iso:
+        from basis.matrix import _isotropic_blocks
+
+        blocks = _isotropic_blocks(basis, np.moveaxis(mean, -1, 0))
+        return [np.moveaxis(b, 0, -1) for b in blocks], info
+    return mean, info
+
+
+def _lstsq(brdf, basis, quantity, iso, samples, seed, t0):
+    from .lstsq import _layout, fit
+
+    n = 2 * _layout(basis, iso).count if samples is None else nonneg_int(samples, "samples")
+    wi, wo = _sobol_pairs(n, seed)
+    n = wi.shape[0]
+    v = _eval_pairs(brdf, wi, wo, int(brdf.channels))
+    values = v[:, 0] if _is_scalar(brdf) else v
+    cm = fit(wi, wo, values, basis, quantity=quantity, isotropic=iso)
+    cm.info.update(seconds=time.perf_counter() - t0, source=repr(brdf), samples=n)
+    return cm
+
+
+# -- diagnostics ------------------------------------------------------------------------------
+def truncation_error(cm: CoefficientMatrix, norm2: NDArray[np.float64]) -> float:
+    """Relative L2 error ||q - q_N|| / ||q|| of the truncated expansion, max over channels.
+
+    By Parseval ||q - q_N||^2 = ||q||^2 - ||M||_F^2 for an orthonormal basis, with ||q||^2
+    from the same quadrature as M. The subtraction limits the resolution to about
+    sqrt(rounding of ||q||^2) ~ 1e-8.
+    """
+    m = cm.matrix.reshape(-1, cm.basis.size, cm.basis.size)
+    mf = np.sum(m * m, axis=(1, 2))
+    norm2 = np.asarray(norm2, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.where(norm2 > 0, np.maximum(0.0, 1.0 - mf / norm2), 0.0)
+    return float(np.sqrt(np.max(rel)))
+
+
+def tail_fraction(cm: CoefficientMatrix) -> float:
+    """Relative RMS of the coefficients with either degree >= order - 1.
+
+    A converged expansion has a small tail; a large one means the truncation rings.
+    """
+    if cm.order < 2:
+        return 0.0
+    m = cm.matrix.reshape(-1, cm.basis.size, cm.basis.size)
+    deg = cm.basis.degree
+    tail = (deg[:, None] >= cm.order - 1) | (deg[None, :] >= cm.order - 1)
+    total = float(np.sum(m * m))
+    return float(np.sqrt(np.sum(m[:, tail] ** 2) / total)) if total > 0 else 0.0
