@@ -5,7 +5,7 @@ scattering modes, quadrature rules and the symmetric coefficient matrix.
 """
 
 from ._base import Basis
-from .directions import from_angles, to_angles, to_rusinkiewicz, from_rusinkiewicz
+from .directions import from_angles, from_rusinkiewicz, to_angles, to_rusinkiewicz
 from .matrix import QUANTITIES, CoefficientMatrix
 from .modes import HelmholtzModes
 from .quadrature import HemisphereRule, hemisphere_rule, sphere_rule

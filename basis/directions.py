@@ -16,7 +16,7 @@ __all__ = ["from_angles", "from_rusinkiewicz", "to_angles", "to_rusinkiewicz"]
 
 def _angles(*arrays: ArrayLike, names: tuple[str, ...]) -> list[NDArray[np.float64]]:
     out = []
-    for a, name in zip(arrays, names):
+    for a, name in zip(arrays, names, strict=True):
         v = np.asarray(a, dtype=np.float64)
         if not np.all(np.isfinite(v)):
             raise ValueError(f"{name} must be finite (radians)")

@@ -67,7 +67,8 @@ class CoefficientMatrix:
     >>> hb = HemiHarmonics(3)
     >>> M = np.zeros((hb.size, hb.size)); k = hb.index(1, 0); M[k, k] = 2 * 0.5 / 3
     >>> cm = CoefficientMatrix(hb, M, quantity="f_cos")
-    >>> cm.is_isotropic, round(float(cm.eval([0, 0, 1.0], [0.6, 0, 0.8])), 12), round(float(cm.albedo([0.6, 0, 0.8])), 12)
+    >>> f = cm.eval([0, 0, 1.0], [0.6, 0, 0.8])
+    >>> cm.is_isotropic, round(float(f), 12), round(float(cm.albedo([0.6, 0, 0.8])), 12)
     (True, 0.159154943092, 0.5)
     """
 
@@ -136,7 +137,7 @@ class CoefficientMatrix:
         arrs = [np.asarray(b, dtype=np.float64) for b in blocks]
         scalar = arrs[0].ndim == 2
         out = []
-        for m, (b, idx) in enumerate(zip(arrs, cos_idx)):
+        for m, (b, idx) in enumerate(zip(arrs, cos_idx, strict=True)):
             want = (idx.size, idx.size) if scalar else (arrs[0].shape[0], idx.size, idx.size)
             if b.shape != want:
                 raise ValueError(f"blocks[{m}] must have shape {want}, got {b.shape}")
@@ -327,7 +328,8 @@ class CoefficientMatrix:
         nb = self.basis.truncate(order)
         if self._blocks is not None:
             cos_idx, _ = _azimuthal_groups(nb)
-            blocks = [b[:, :idx.size, :idx.size] for b, idx in zip(self._blocks, cos_idx)]
+            blocks = [b[:, :idx.size, :idx.size]
+                      for b, idx in zip(self._blocks, cos_idx, strict=False)]  # fewer orders
             return CoefficientMatrix.from_blocks(
                 nb, [b[0] if self._scalar else b for b in blocks], self.quantity,
                 info=self.info)
@@ -372,7 +374,7 @@ class CoefficientMatrix:
                                  "to_modes(isotropic=False)")
             n, m, l = hm.indices.T
             vals = np.stack([self._blocks[lk][:, (nk - lk) // 2, (mk - lk) // 2]
-                             for nk, mk, lk in zip(n, m, l)], axis=-1)
+                             for nk, mk, lk in zip(n, m, l, strict=True)], axis=-1)
             out = vals * _iso_mode_factor(n, m, l)
         else:
             p, q = hm.pairs.T
@@ -413,7 +415,7 @@ def _azimuthal_groups(basis: Basis) -> tuple[list[NDArray], list[NDArray]]:
 def _isotropic_blocks(basis: Basis, m: NDArray) -> list[NDArray]:
     cos_idx, sin_idx = _azimuthal_groups(basis)
     blocks = []
-    for k, (c, s) in enumerate(zip(cos_idx, sin_idx)):
+    for k, (c, s) in enumerate(zip(cos_idx, sin_idx, strict=True)):
         b = m[:, c[:, None], c]
         if k:
             b = 0.5 * (b + m[:, s[:, None], s])
@@ -424,7 +426,7 @@ def _isotropic_blocks(basis: Basis, m: NDArray) -> list[NDArray]:
 def _assemble(basis: Basis, blocks: list[NDArray]) -> NDArray:
     cos_idx, sin_idx = _azimuthal_groups(basis)
     out = np.zeros((blocks[0].shape[0], basis.size, basis.size))
-    for k, (c, s) in enumerate(zip(cos_idx, sin_idx)):
+    for k, (c, s) in enumerate(zip(cos_idx, sin_idx, strict=True)):
         out[:, c[:, None], c] = blocks[k]
         if k:
             out[:, s[:, None], s] = blocks[k]

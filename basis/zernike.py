@@ -161,7 +161,8 @@ def _radial_kernel(rho, n, l, out):
                 kk = k - 1.0
                 d = 2.0 * (kk + 1.0) * (kk + b + 1.0) * (2.0 * kk + b)
                 rn = (((2 * kk + b + 1) * (2 * kk + b + 2) * (2 * kk + b) / d) * x
-                      - (2 * kk + b + 1) * b * b / d) * r - (2 * kk * (kk + b) * (2 * kk + b + 2) / d) * r_prev
+                      - (2 * kk + b + 1) * b * b / d) * r \
+                    - (2 * kk * (kk + b) * (2 * kk + b + 2) / d) * r_prev
             r_prev = r
             r = rn
         out[i] = r

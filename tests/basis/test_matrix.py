@@ -4,8 +4,15 @@ isotropic storage, truncation, modes round trip, channels and bad input."""
 import numpy as np
 import pytest
 
-from basis import (CoefficientMatrix, HelmholtzModes, HemiHarmonics, HemiZernike,
-                   SphericalHarmonics, from_angles, hemisphere_rule)
+from basis import (
+    CoefficientMatrix,
+    HelmholtzModes,
+    HemiHarmonics,
+    HemiZernike,
+    SphericalHarmonics,
+    from_angles,
+    hemisphere_rule,
+)
 
 
 def _unit_upper(rng, n):

@@ -86,7 +86,7 @@ def test_printed_low_order_modes():
     v = modes.eval(from_angles(t1, dphi), from_angles(t2, 0.0)) * modes.paper_norms
     c1, c2 = np.cos(t1), np.cos(t2)
     s1, s2 = np.sin(t1 / 2), np.sin(t2 / 2)
-    got = dict(zip(map(tuple, modes.indices.tolist()), v))
+    got = dict(zip(map(tuple, modes.indices.tolist()), v, strict=True))
     # agree with the paper as printed (tolerance: rounding of O(1) values)
     assert got[(0, 0, 0)] == pytest.approx(1 / np.pi, abs=1e-14)
     assert got[(1, 1, 1)] == pytest.approx(4 / np.pi * s1 * s2 * np.cos(dphi), abs=1e-14)
@@ -132,4 +132,4 @@ def test_bad_eval():
     with pytest.raises(ValueError, match="broadcastable batch shapes"):
         modes.eval(np.tile(up, (3, 1)), np.tile(up, (4, 1)))
     with pytest.raises(ValueError, match="paper_norms is defined for the isotropic"):
-        HelmholtzModes(2, isotropic=False).paper_norms
+        _ = HelmholtzModes(2, isotropic=False).paper_norms

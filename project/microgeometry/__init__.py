@@ -1,0 +1,30 @@
+"""Westin-style Monte Carlo microgeometry simulator (Westin, Arvo & Torrance 1992).
+
+Rays are traced through a periodic, triangulated height field whose facets are mirrors
+(with Fresnel), ideal diffusers or any microscale BRDF; the exiting rays give a Monte Carlo
+estimate of the coefficient matrix of f cos(theta_i) cos(theta_o) in any hemisphere basis.
+
+- :class:`GaussianSurface`, :class:`Heightfield`: the specimens.
+- :class:`Mirror`, :class:`Diffuse`, :class:`MicroBRDF`: facet materials.
+- :func:`trace`: paths for one incident direction (exit directions, weights, bounces).
+- :func:`simulate`: the coefficient matrix with Q, standard errors and energy balance.
+"""
+
+from .estimate import SimulationResult, merge, simulate
+from .materials import Diffuse, Material, MicroBRDF, Mirror
+from .surface import GaussianSurface, Heightfield
+from .trace import Paths, trace
+
+__all__ = [
+    "Diffuse",
+    "GaussianSurface",
+    "Heightfield",
+    "Material",
+    "MicroBRDF",
+    "Mirror",
+    "Paths",
+    "SimulationResult",
+    "merge",
+    "simulate",
+    "trace",
+]

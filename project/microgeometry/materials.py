@@ -1,0 +1,129 @@
+"""Facet materials of the microgeometry simulator (one material per surface).
+
+Each material hands the tracer kernel a code and a small parameter vector; the scattering
+itself happens inside the numba kernel (``trace.py``) or, for :class:`MicroBRDF`, in batches.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["Diffuse", "Material", "MicroBRDF", "Mirror"]
+
+MIRROR, DIFFUSE, MICRO = 0, 1, 2
+
+
+class Material:
+    """Base class of facet materials: ``code`` and ``params`` (ior, k, albedo) for the kernel."""
+
+    code: int = -1
+
+    def _params(self) -> np.ndarray:
+        raise NotImplementedError
+
+
+class Mirror(Material):
+    """Ideal mirror facets, lossless (F = 1) or with the exact unpolarised Fresnel reflectance.
+
+    Parameters
+    ----------
+    ior : float or None
+        None: F = 1 (lossless, the default). Otherwise the real part n > 0 of the relative
+        index; the reflectance is :func:`project.models.fresnel` of n + i k at the local angle
+        of incidence on the facet.
+    k : float
+        Extinction coefficient >= 0 (conductors); needs ``ior``.
+
+    Examples
+    --------
+    >>> Mirror(), Mirror(1.5)
+    (Mirror(), Mirror(ior=1.5, k=0))
+    """
+
+    code = MIRROR
+
+    def __init__(self, ior: float | None = None, k: float = 0.0) -> None:
+        if ior is None:
+            if k != 0:
+                raise ValueError(f"k must be 0 when ior is None (F = 1), got {k!r}")
+            self.ior, self.k = None, 0.0
+        else:
+            self.ior = _number(ior, "ior", strict=True)
+            self.k = _number(k, "k", strict=False)
+
+    def _params(self) -> np.ndarray:
+        # ior = 0 tells the kernel "F = 1"
+        return np.array([0.0 if self.ior is None else self.ior, self.k, 1.0])
+
+    def __repr__(self) -> str:
+        return "Mirror()" if self.ior is None else f"Mirror(ior={self.ior:g}, k={self.k:g})"
+
+
+class Diffuse(Material):
+    """Ideal diffuse (Lambertian) facets of albedo ``albedo`` in [0, 1], sampled by cosine.
+
+    Examples
+    --------
+    >>> Diffuse(0.5)
+    Diffuse(0.5)
+    """
+
+    code = DIFFUSE
+
+    def __init__(self, albedo: float = 1.0) -> None:
+        a = _number(albedo, "albedo", strict=False)
+        if a > 1.0:
+            raise ValueError(f"albedo must be <= 1, got {albedo!r}")
+        self.albedo = a
+
+    def _params(self) -> np.ndarray:
+        return np.array([0.0, 0.0, self.albedo])
+
+    def __repr__(self) -> str:
+        return f"Diffuse({self.albedo:g})"
+
+
+class MicroBRDF(Material):
+    """Any BRDF (e.g. a :mod:`project.models` model) as the microscale BRDF of every facet.
+
+    Parameters
+    ----------
+    brdf : BRDF
+        One-channel, evaluated in the facet's local frame (its normal as z). Ideal mirror
+        (``delta``) terms are not supported here: use :class:`Mirror`.
+
+    Notes
+    -----
+    Directional-diffuse scattering by importance sampling the cosine factor: the new
+    direction is cosine distributed about the facet normal and the weight is multiplied by
+    pi f(w_i, w_o) (Westin et al. sec. 4.3, eqs 23-24, with one ray per event instead of n
+    uniformly spread rays, and Russian roulette instead of branching).
+    """
+
+    code = MICRO
+
+    def __init__(self, brdf: object) -> None:
+        if not (hasattr(brdf, "eval") and hasattr(brdf, "channels")):
+            raise TypeError(f"brdf must be a BRDF (eval, channels, isotropic), got "
+                            f"{type(brdf).__name__}")
+        if int(brdf.channels) != 1:
+            raise ValueError(f"brdf must have 1 channel, got {brdf.channels}")
+        if getattr(brdf, "delta", ()):
+            raise ValueError("brdf must not have ideal mirror (delta) terms; use Mirror facets")
+        self.brdf = brdf
+
+    def _params(self) -> np.ndarray:
+        return np.array([0.0, 0.0, 1.0])
+
+    def __repr__(self) -> str:
+        return f"MicroBRDF({self.brdf!r})"
+
+
+def _number(value: object, name: str, *, strict: bool) -> float:
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(v) or (v <= 0 if strict else v < 0):
+        raise ValueError(f"{name} must be finite and {'>' if strict else '>='} 0, got {value!r}")
+    return v

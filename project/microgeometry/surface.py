@@ -1,0 +1,235 @@
+"""Periodic height fields for the microgeometry simulator: user maps and Gaussian surfaces.
+
+A height field h[j, i] on a regular grid (x = i dx, y = j dy) is tiled periodically with
+period (nx dx, ny dy) and triangulated: cell (i, j) is split along its (0, 0)-(1, 1)
+diagonal into triangle A (corners 00, 10, 11; u >= v) and triangle B (00, 11, 01; v >= u),
+u, v the local coordinates in [0, 1]. Periodic tiling removes the edge and target-area
+problems of a finite patch (Westin et al. 1992, sec. 4.5, needed a 2.4 mm margin around a
+3.1 mm target). The traversal structure is a max-height mip pyramid over the cells.
+"""
+
+from __future__ import annotations
+
+import hashlib
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from .materials import Material, Mirror
+
+__all__ = ["GaussianSurface", "Heightfield"]
+
+
+class Heightfield:
+    """A user height map, tiled periodically and triangulated (two triangles per cell).
+
+    Parameters
+    ----------
+    heights : (ny, nx) array_like of float
+        Heights in length units, at x = i * dx, y = j * dy; ny, nx >= 2, all finite. The map
+        is treated as one period of a periodic surface: cell (nx - 1, j) joins column nx - 1
+        to column 0. A map that is not periodic gets a step at the seam (make it periodic, or
+        accept the seam as part of the specimen).
+    spacing : float or (2,) array_like of float
+        Grid spacing (dx, dy) > 0, same length units as ``heights``.
+    material : Material, optional
+        Facet material of every triangle (default: lossless :class:`Mirror`).
+
+    Attributes
+    ----------
+    heights : (ny, nx) ndarray
+        A read-only float64 copy.
+    period : (2,) ndarray
+        (nx dx, ny dy).
+    triangles : int
+        2 nx ny.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> hf = Heightfield(np.zeros((4, 4)), 0.5)
+    >>> hf.triangles, hf.period.tolist(), hf.roughness
+    (32, [2.0, 2.0], 0.0)
+    """
+
+    def __init__(self, heights: ArrayLike, spacing: ArrayLike, *,
+                 material: Material | None = None) -> None:
+        try:
+            h = np.array(heights, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TypeError(f"heights must be a 2-D array of floats, got "
+                            f"{type(heights).__name__}") from None
+        if h.ndim != 2 or h.size == 0:
+            raise ValueError(f"heights must be a non-empty 2-D array, got shape {h.shape}")
+        if min(h.shape) < 2:
+            raise ValueError(f"heights must have at least 2 x 2 points, got shape {h.shape}")
+        bad = int(np.sum(~np.isfinite(h)))
+        if bad:
+            raise ValueError(f"heights must be finite: {bad} of {h.size} values are NaN or inf")
+        try:
+            sp = np.broadcast_to(np.asarray(spacing, dtype=np.float64), (2,)).copy()
+        except (TypeError, ValueError):
+            raise ValueError(f"spacing must be a number or a pair (dx, dy), got "
+                             f"{spacing!r}") from None
+        if not np.all(np.isfinite(sp)) or np.any(sp <= 0):
+            raise ValueError(f"spacing must be finite and > 0, got {spacing!r}")
+        if material is None:
+            material = Mirror()
+        if not isinstance(material, Material):
+            raise TypeError(f"material must be a Material (Mirror, Diffuse, MicroBRDF), got "
+                            f"{type(material).__name__}")
+        h.setflags(write=False)
+        self.heights = h
+        self.spacing = sp
+        self.material = material
+        self._pyramid, self._offsets, self._levels = _max_pyramid(h)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(ny, nx) grid points per period."""
+        return self.heights.shape
+
+    @property
+    def period(self) -> NDArray[np.float64]:
+        """(2,) period (nx dx, ny dy) of the tiling, in length units."""
+        return np.array([self.shape[1] * self.spacing[0], self.shape[0] * self.spacing[1]])
+
+    @property
+    def triangles(self) -> int:
+        """Number of triangles per period, 2 nx ny."""
+        return 2 * self.heights.size
+
+    def slopes(self) -> NDArray[np.float64]:
+        """(2 ny nx, 2) facet slopes (dh/dx, dh/dy) of every triangle (A then B of each cell).
+
+        All triangles have the same projected area, so plain averages over these rows are
+        averages over the mean plane.
+        """
+        h = self.heights
+        dx, dy = self.spacing
+        h10 = np.roll(h, -1, axis=1)
+        h01 = np.roll(h, -1, axis=0)
+        h11 = np.roll(h01, -1, axis=1)
+        a = np.stack([(h10 - h) / dx, (h11 - h10) / dy], axis=-1)
+        b = np.stack([(h11 - h01) / dx, (h01 - h) / dy], axis=-1)
+        return np.concatenate([a.reshape(-1, 2), b.reshape(-1, 2)])
+
+    @property
+    def roughness(self) -> float:
+        """Measured Beckmann RMS slope m = sqrt(<(dh/dx)^2 + (dh/dy)^2>) of the mesh.
+
+        For a Beckmann distribution m^2 = <tan^2 theta_h>; compare the simulation against
+        this measured value, since triangulation lowers the slope variance (digest 2.10).
+        """
+        s = self.slopes()
+        return float(np.sqrt(np.mean(np.sum(s * s, axis=1))))
+
+    def fingerprint(self) -> str:
+        """SHA-256 of heights, spacing and material: identifies the specimen in checkpoints."""
+        d = hashlib.sha256()
+        d.update(np.ascontiguousarray(self.heights).tobytes())
+        d.update(str(self.heights.shape).encode())
+        d.update(self.spacing.tobytes())
+        d.update(repr(self.material).encode())
+        return d.hexdigest()
+
+    def __repr__(self) -> str:
+        return (f"Heightfield(shape={self.shape}, spacing={self.spacing.tolist()}, "
+                f"material={self.material!r})")
+
+
+class GaussianSurface(Heightfield):
+    """A periodic Gaussian random height field made by FFT filtering of white noise.
+
+    Parameters
+    ----------
+    sigma : float
+        RMS height > 0 (the sample standard deviation is set to exactly ``sigma``).
+    tau : float
+        Correlation length > 0: the autocorrelation is sigma^2 exp(-r^2 / tau^2) (He et al.
+        1991), so the Beckmann RMS slope is m = 2 sigma / tau.
+    resolution : int
+        Grid points per side (the period holds resolution^2 points and 2 resolution^2
+        triangles). Default 128.
+    spacing : float, optional
+        Grid spacing. Default tau / 4: triangulation then lowers the per-axis slope variance
+        by the factor (1 - exp(-1/16)) * 16 = 0.969 (digest 2.10), i.e. m is 1.6 % low;
+        :attr:`roughness` reports the measured m.
+    seed : int
+        Seed of the white noise (numpy ``default_rng``).
+    material : Material, optional
+        Facet material (default lossless :class:`Mirror`).
+
+    Notes
+    -----
+    White noise w on the grid is filtered in Fourier space by exp(-|k|^2 tau^2 / 8), which
+    gives the power spectrum exp(-|k|^2 tau^2 / 4), i.e. the autocorrelation
+    exp(-r^2 / tau^2); the result is shifted to zero mean and scaled to RMS ``sigma``. With
+    the defaults the period is 32 tau, about 800 correlation areas.
+
+    Examples
+    --------
+    >>> s = GaussianSurface(1.0, 6.5, resolution=64, seed=1)
+    >>> s.shape, round(float(s.heights.std()), 12), s.triangles
+    ((64, 64), 1.0, 8192)
+    """
+
+    def __init__(self, sigma: float, tau: float, *, resolution: int = 128,
+                 spacing: float | None = None, seed: int = 0,
+                 material: Material | None = None) -> None:
+        sigma = _positive(sigma, "sigma")
+        tau = _positive(tau, "tau")
+        if isinstance(resolution, bool) or not isinstance(resolution, (int, np.integer)):
+            raise TypeError(f"resolution must be an integer, got {resolution!r}")
+        if resolution < 4:
+            raise ValueError(f"resolution must be >= 4, got {resolution}")
+        sp = tau / 4.0 if spacing is None else _positive(spacing, "spacing")
+        n = int(resolution)
+        rng = np.random.default_rng(seed)
+        white = rng.standard_normal((n, n))
+        k = 2.0 * np.pi * np.fft.fftfreq(n, d=sp)
+        k2 = k[:, None] ** 2 + k[None, :] ** 2
+        h = np.fft.ifft2(np.fft.fft2(white) * np.exp(-k2 * tau * tau / 8.0)).real
+        h -= h.mean()
+        h *= sigma / h.std()
+        super().__init__(h, sp, material=material)
+        self.sigma, self.tau, self.seed = sigma, tau, seed
+
+    @property
+    def nominal_roughness(self) -> float:
+        """Beckmann m = 2 sigma / tau of the continuous surface."""
+        return 2.0 * self.sigma / self.tau
+
+    def __repr__(self) -> str:
+        return (f"GaussianSurface(sigma={self.sigma:g}, tau={self.tau:g}, "
+                f"resolution={self.shape[0]}, spacing={self.spacing[0]:g}, seed={self.seed}, "
+                f"material={self.material!r})")
+
+
+def _positive(value: object, name: str) -> float:
+    try:
+        v = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a number, got {value!r}") from None
+    if not np.isfinite(v) or v <= 0:
+        raise ValueError(f"{name} must be finite and > 0, got {value!r}")
+    return v
+
+
+def _max_pyramid(h: NDArray[np.float64]) -> tuple[NDArray, NDArray, int]:
+    """Max-height mip pyramid of the cells, flattened level after level.
+
+    Level 0 holds, per cell (i, j), the max of its four corners (periodic); level L + 1 the
+    max over 2 x 2 nodes of level L, while both dimensions stay even. Returns the flat
+    values, the offset of each level (plus the end) and the number of levels above 0.
+    """
+    c = np.maximum(np.maximum(h, np.roll(h, -1, 0)),
+                   np.maximum(np.roll(h, -1, 1), np.roll(np.roll(h, -1, 0), -1, 1)))
+    levels = [c]
+    while c.shape[0] % 2 == 0 and c.shape[1] % 2 == 0 and min(c.shape) > 1:
+        c = np.maximum(np.maximum(c[0::2, 0::2], c[1::2, 0::2]),
+                       np.maximum(c[0::2, 1::2], c[1::2, 1::2]))
+        levels.append(c)
+    offsets = np.cumsum([0] + [lv.size for lv in levels]).astype(np.int64)
+    flat = np.concatenate([lv.reshape(-1) for lv in levels])
+    return flat, offsets, len(levels) - 1
