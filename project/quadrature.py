@@ -18,15 +18,17 @@ O(N^2 N_phi) evaluations and O(N^3) arithmetic instead of the O(N^4) of a dense 
 Anisotropic BRDFs use the full (z_i, phi_i, z_o, phi_o) grid with real Fourier transforms in
 both azimuths, processed a few z_i nodes at a time so memory stays bounded.
 
-The node counts start from the order and double until two successive results differ by less
-than the tolerance; that difference is returned as the error estimate (a conservative one,
-since the finer result is returned).
+The node counts start from the order; the z and azimuth rules are doubled separately, each
+time the one whose last doubling changed the result more, until the sum of the two changes
+is below the tolerance. That sum is returned as the error estimate (a conservative one, since
+the finer result is returned).
 """
 
 from __future__ import annotations
 
 import time
 import warnings
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -57,6 +59,7 @@ def project(
     isotropic: bool | None = None,
     nodes: tuple[int, int] | None = None,
     max_nodes: int = 512,
+    max_evaluations: int = 100_000_000,
     samples: int | None = None,
     seed: int = 0,
 ) -> CoefficientMatrix:
@@ -89,7 +92,11 @@ def project(
         Quadrature only: use this rule (nodes in z per direction, in azimuth) once, with no
         refinement; the error estimate then compares with the rule of half the size.
     max_nodes : int
-        Quadrature only: refinement stops (with a warning) when ``n_z`` would exceed this.
+        Quadrature only: refinement stops (with a warning) when ``n_z`` would exceed this, or
+        ``n_phi`` four times this.
+    max_evaluations : int
+        Quadrature only: refinement also stops (with a warning) before a rule that would
+        evaluate the BRDF at more pairs than this (an anisotropic rule costs n_z^2 n_phi^2).
     samples : int, optional
         Monte Carlo and least squares: number of direction pairs (Monte Carlo default
         2**16 per scramble).
@@ -146,7 +153,8 @@ def project(
         raise ValueError(f"tol must be a number in (0, 1), got {tol!r}")
 
     if method == "quadrature":
-        blocks_or_dense, info = _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes)
+        blocks_or_dense, info = _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes,
+                                            max_evaluations)
     elif method == "montecarlo":
         blocks_or_dense, info = _montecarlo(brdf, basis, quantity, iso, samples, seed)
     else:
@@ -238,7 +246,7 @@ def _gauss_z(n: int) -> tuple[NDArray, NDArray]:
 
 
 # -- quadrature -------------------------------------------------------------------------------
-def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes):
+def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluations):
     order = basis.order
     step = _iso_rule if iso else _aniso_rule
     if nodes is not None:
@@ -254,25 +262,61 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes):
                           error_estimate=err, rel_error=err / scale,
                           converged=err <= tol * scale, norm2=norm2)
     max_nodes = nonneg_int(max_nodes, "max_nodes")
+    budget = nonneg_int(max_evaluations, "max_evaluations")
+
+    def cost(nz: int, nphi: int) -> int:
+        return nz * nz * (nphi // 2 + 1) // 2 if iso else nz * nz * nphi * nphi
+
+    # z and phi converge at different rates (a lobe near the pole needs few Gauss nodes, the
+    # near-horizon corner wi ~ -wo many azimuths), so each is doubled on its own: the change
+    # from doubling one with the other fixed estimates that one's error, and the one with the
+    # larger estimate is doubled next. The estimate returned is the sum of the two.
     nz, nphi = max(order + 2, 4), 2 * order + 2
-    prev, evals, _ = step(brdf, basis, quantity, nz, nphi)
+    evals = 0
+    grading = 1
+    if iso:
+        # pilot on the coarse z rule: keep the azimuth rule (uniform or graded) whose change
+        # from 8 (order + 1) to 16 (order + 1) azimuths is smaller
+        change = {}
+        for g in (1, GRADING):
+            a, ev_a, _ = _iso_rule(brdf, basis, quantity, nz, 8 * (order + 1), g)
+            b, ev_b, _ = _iso_rule(brdf, basis, quantity, nz, 16 * (order + 1), g)
+            change[g], evals = _diff(b, a)[0], evals + ev_a + ev_b
+        grading = GRADING if change[GRADING] < 0.5 * change[1] else 1
+        step = partial(_iso_rule, grading=grading)
+    cur, ev, norm2 = step(brdf, basis, quantity, nz, nphi)
+    evals += ev
+    err = {"z": np.inf, "phi": np.inf}
+    cap = {"z": max_nodes, "phi": 4 * max_nodes}
     while True:
-        nz, nphi = 2 * nz, 2 * nphi
-        cur, ev, norm2 = step(brdf, basis, quantity, nz, nphi)
-        evals += ev
-        err, scale = _diff(cur, prev)
-        if err <= tol * scale or 2 * nz > max_nodes:
+        scale = _diff(cur, cur)[1]
+        total = err["z"] + err["phi"]
+        if total <= tol * scale:
             break
-        prev = cur
-    converged = err <= tol * scale
+        nxt = {"z": (2 * nz, nphi), "phi": (nz, 2 * nphi)}
+        dim = max((d for d in err if 2 * (nz if d == "z" else nphi) <= cap[d]
+                   and cost(*nxt[d]) <= budget), key=lambda d: err[d], default=None)
+        if dim is None:
+            break
+        nz, nphi = (2 * nz, nphi) if dim == "z" else (nz, 2 * nphi)
+        new, ev, norm2 = step(brdf, basis, quantity, nz, nphi)
+        evals += ev
+        err[dim] = _diff(new, cur)[0]
+        cur = new
+    err_total = err["z"] + err["phi"]
+    converged = err_total <= tol * scale
     if not converged:
         warnings.warn(f"projection of {brdf!r} onto {basis!r} did not reach tol = {tol:.3g}: "
-                      f"estimated relative error {err / scale:.3g} with {nz} x {nphi} nodes "
-                      f"(max_nodes = {max_nodes}); the BRDF is sharper than the rule resolves: "
-                      "raise max_nodes or accept the error", RuntimeWarning, stacklevel=3)
+                      f"estimated relative error {err_total / scale:.3g} (z {err['z'] / scale:.2g}"
+                      f", phi {err['phi'] / scale:.2g}) with {nz} x {nphi} nodes (max_nodes = "
+                      f"{max_nodes}, 4 x that in phi; max_evaluations = {budget:.3g}); the BRDF "
+                      "is sharper than the rule resolves: raise the limits or accept the error",
+                      RuntimeWarning,
+                      stacklevel=3)
     return cur, dict(method="quadrature", nodes=(nz, nphi), evaluations=evals,
-                     error_estimate=err, rel_error=err / scale, converged=converged,
-                     norm2=norm2)
+                     error_estimate=err_total, rel_error=err_total / scale, converged=converged,
+                     norm2=norm2, azimuth_rule="uniform" if grading == 1 else
+                     f"graded (p = {grading})")
 
 
 def _diff(a, b) -> tuple[float, float]:
@@ -284,11 +328,37 @@ def _diff(a, b) -> tuple[float, float]:
     return err, (scale if scale > 0 else 1.0)
 
 
-def _iso_rule(brdf, basis, quantity, nz, nphi):
+def _azimuth_nodes(nphi: int, grading: int) -> tuple[NDArray, NDArray]:
+    """Nodes and weights on [0, pi] for int_0^pi g(dphi) d dphi, nphi / 2 intervals.
+
+    ``grading`` 1 is the trapezoid rule (spectrally accurate for smooth periodic g); p > 1
+    is the trapezoid rule after the sigmoidal substitution dphi = pi t^p / (t^p + (1-t)^p),
+    which crowds nodes towards dphi = 0 and pi. Half-vector lobes (Cook-Torrance, Ward,
+    Blinn-Phong) sit at dphi = pi and narrow like cos(theta) near the horizon, where the
+    uniform rule converges only algebraically; the graded rule resolves them.
+    """
+    half = nphi // 2
+    t = np.arange(half + 1) / half
+    if grading == 1:
+        u, du = t, np.ones_like(t)
+    else:
+        a, b = t**grading, (1.0 - t) ** grading
+        u = a / (a + b)
+        du = grading * (t * (1.0 - t)) ** (grading - 1) / (a + b) ** 2
+    w = np.pi * du / half
+    w[[0, -1]] *= 0.5
+    return np.pi * u, w
+
+
+#: Sigmoidal grading of the azimuth rule tried against the uniform one (see _azimuth_nodes).
+GRADING = 6
+
+
+def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1):
     """Isotropic blocks [(k_m, k_m, channels)] with nz Gauss nodes and nphi azimuths."""
     z, wz = _gauss_z(nz)
     half = nphi // 2
-    dphi = 2.0 * np.pi * np.arange(half + 1) / nphi  # [0, pi]: q is even in dphi
+    dphi, wphi = _azimuth_nodes(nphi, grading)  # [0, pi]: q is even in dphi
     ch = int(brdf.channels)
     reciprocal = bool(getattr(brdf, "reciprocal", True))
     ia, ib = np.triu_indices(nz) if reciprocal else np.indices((nz, nz)).reshape(2, -1)
@@ -310,21 +380,21 @@ def _iso_rule(brdf, basis, quantity, nz, nphi):
         q[s:s + rows] = v.reshape(a.size, half + 1, ch)
     if quantity == "f_cos":
         q *= (z[ia] * z[ib])[:, None, None]
-    # ||q||^2 = sum_ab wz_a wz_b 2 pi int q^2 d dphi, off-diagonal pairs twice when folded
+    # ||q||^2 = sum_ab wz_a wz_b 2 pi int_0^{2 pi} q^2, off-diagonal pairs twice when folded
     pair_w = wz[ia] * wz[ib] * (np.where(ia == ib, 1.0, 2.0) if reciprocal else 1.0)
-    even = np.full(half + 1, 2.0)
-    even[[0, -1]] = 1.0
-    norm2 = 2.0 * np.pi * (2.0 * np.pi / nphi) * np.einsum("a,s,asc->c", pair_w, even, q * q)
-    # F_m = (2 pi / nphi) DCT-I over dphi (x_0 + (-1)^m x_half + 2 sum cos)
-    fm = scipy.fft.dct(q, type=1, axis=1) * (2.0 * np.pi / nphi)
-    full = np.empty((nz, nz, half + 1, ch))
+    norm2 = 2.0 * np.pi * 2.0 * np.einsum("a,s,asc->c", pair_w, wphi, q * q)
+    # F_m = int_0^{2 pi} q cos(m dphi) = 2 int_0^pi (q even)
+    top = _top(basis.azimuthal)
+    cosm = 2.0 * wphi[:, None] * np.cos(np.outer(dphi, np.arange(top + 1)))
+    fm = np.einsum("asc,sm->amc", q, cosm, optimize=True)
+    full = np.empty((nz, nz, top + 1, ch))
     full[ia, ib] = fm
     if reciprocal:
         full[ib, ia] = fm
     p = radial_table(basis, z) * wz[:, None]
     az = basis.azimuthal
     blocks = []
-    for m in range(_top(az) + 1):
+    for m in range(top + 1):
         pm = p[:, az == m]
         c = 2.0 * np.pi if m == 0 else np.pi
         blocks.append(c * np.einsum("aj,abc,bk->jkc", pm, full[:, :, m], pm, optimize=True))
