@@ -1,0 +1,47 @@
+"""What is done with coefficients: truncation, filtering, low rank, storage precision, order
+selection, error/resolution studies and charts, HDF5 storage, and the ``scatmodes`` command.
+
+Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
+"""
+
+from .evaluate import FastEvaluator, evaluate
+from .select import Environment, ScenePlan, for_scene, select_order
+from .store import load, save
+from .study import KINDS, METRICS, Study, errors, make_basis, pareto_front, reference_samples, study
+from .truncate import (
+    Ringing,
+    lowrank,
+    precision,
+    ringing,
+    smooth,
+    smoothing_factors,
+    truncate,
+    unique_coefficients,
+)
+
+__all__ = [
+    "KINDS",
+    "METRICS",
+    "Environment",
+    "FastEvaluator",
+    "Ringing",
+    "ScenePlan",
+    "Study",
+    "errors",
+    "evaluate",
+    "for_scene",
+    "load",
+    "lowrank",
+    "make_basis",
+    "pareto_front",
+    "precision",
+    "reference_samples",
+    "ringing",
+    "save",
+    "select_order",
+    "smooth",
+    "smoothing_factors",
+    "study",
+    "truncate",
+    "unique_coefficients",
+]

@@ -31,7 +31,6 @@ import numpy as np
 from basis import Basis, CoefficientMatrix
 from basis._jit import pjit, prange
 
-from .materials import MICRO
 from .surface import Heightfield
 from .trace import _alloc, _positive_int, _run, _seed, incident_directions
 
@@ -228,9 +227,6 @@ def simulate(
     if not isinstance(basis, Basis):
         raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
                         f"{type(basis).__name__}")
-    if surface.material.code == MICRO:
-        raise NotImplementedError("simulate supports Mirror and Diffuse facets; MicroBRDF "
-                                  "facets are not implemented yet")
     rays = _positive_int(rays, "rays")
     seed_u = _seed(seed)
     if incident not in ("cosine", "uniform"):

@@ -89,28 +89,53 @@ class MicroBRDF(Material):
     Parameters
     ----------
     brdf : BRDF
-        One-channel, evaluated in the facet's local frame (its normal as z). Ideal mirror
-        (``delta``) terms are not supported here: use :class:`Mirror`.
+        One channel, evaluated in the facet's local frame: z is the facet normal and x the
+        mean plane's x axis projected onto the facet (this orients anisotropic models).
+        Ideal mirror (``delta``) terms are supported (chosen against the smooth part by
+        their albedos at each event).
+
+    Raises
+    ------
+    TypeError
+        If ``brdf`` lacks ``eval`` or ``channels``.
+    ValueError
+        If it has more than one channel, or returns negative or non-finite values on a
+        test grid (8 incidences x 16 x 32 exit directions; values met while tracing are
+        checked too).
 
     Notes
     -----
-    Directional-diffuse scattering by importance sampling the cosine factor: the new
-    direction is cosine distributed about the facet normal and the weight is multiplied by
-    pi f(w_i, w_o) (Westin et al. sec. 4.3, eqs 23-24, with one ray per event instead of n
-    uniformly spread rays, and Russian roulette instead of branching).
+    Directional-diffuse scattering (Westin et al. 1992, sec. 4.3, eqs 23-24) with one
+    importance-sampled ray per event instead of n uniformly spread rays, and Russian
+    roulette instead of branching. The new direction is drawn from a mixture of the cosine
+    density and, for CookTorrance (Beckmann, GGX), Phong and BlinnPhong, a sampler of the
+    model's lobe; the path weight is multiplied by f cos(theta_o) / pdf. The estimator is
+    unbiased (the cosine part of the mixture keeps pdf > 0 wherever f > 0; roulette is
+    unbiased). Variance: pure cosine sampling (factor pi f) has a per-event variance of
+    order the lobe's peak value, ~ 1 / m^2 for a microfacet lobe of roughness m, so sharp
+    lobes without a sampler converge slowly; with the lobe sampler the factor stays near the
+    lobe's albedo. See :mod:`project.microgeometry.scatter` and
+    :mod:`project.microgeometry.wavefront` (the bounce-by-bounce tracer).
+
+    Examples
+    --------
+    >>> from project.models import Lambert
+    >>> MicroBRDF(Lambert(0.5))
+    MicroBRDF(Lambert(albedo=0.5))
     """
 
     code = MICRO
 
     def __init__(self, brdf: object) -> None:
+        from .scatter import FacetSampler
+
         if not (hasattr(brdf, "eval") and hasattr(brdf, "channels")):
             raise TypeError(f"brdf must be a BRDF (eval, channels, isotropic), got "
                             f"{type(brdf).__name__}")
         if int(brdf.channels) != 1:
             raise ValueError(f"brdf must have 1 channel, got {brdf.channels}")
-        if getattr(brdf, "delta", ()):
-            raise ValueError("brdf must not have ideal mirror (delta) terms; use Mirror facets")
         self.brdf = brdf
+        self._sampler = FacetSampler(brdf)
 
     def _params(self) -> np.ndarray:
         return np.array([0.0, 0.0, 1.0])

@@ -69,7 +69,7 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
     ----------
     surface : Heightfield
         Specimen (its ``material`` scatters at every facet). :class:`MicroBRDF` facets are
-        not supported here (use :func:`simulate`).
+        traced bounce by bounce (``wavefront.py``), the others path by path in numba.
     wi : (3,) array_like of float
         Unit vector towards the light, z > 0.
     rays : int
@@ -94,9 +94,6 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
     """
     if not isinstance(surface, Heightfield):
         raise TypeError(f"surface must be a Heightfield, got {type(surface).__name__}")
-    if surface.material.code == MICRO:
-        raise NotImplementedError("trace supports Mirror and Diffuse facets; MicroBRDF "
-                                  "facets are traced by simulate")
     w = as_directions(wi, "wi").reshape(-1, 3)
     if w.shape[0] != 1 or not w[0, 2] > 0:
         raise ValueError(f"wi must be one unit vector with z > 0, got {np.asarray(wi)!r}")
@@ -130,6 +127,11 @@ def _run(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64, start: 
          out: tuple, max_bounces: int = MAX_BOUNCES, max_steps: int = MAX_STEPS) -> None:
     """Trace ``per`` rays for each incident direction in ``dirs`` (B, 3); rays of direction b
     are rows b * per ... (b + 1) * per - 1 of the outputs, global ray index start + row."""
+    if surface.material.code == MICRO:
+        from .wavefront import run_wavefront
+
+        run_wavefront(surface, dirs, per, seed, start, out, max_bounces, max_steps)
+        return
     h = surface.heights
     sx, sy = surface.spacing
     _trace_kernel(np.ascontiguousarray(dirs), per, seed, np.uint64(start), h,

@@ -222,3 +222,86 @@ def test_bad_brdf_and_basis():
 
     with pytest.raises(ValueError, match="returned non-finite values"):
         project(Bad(), HemiZernike(2))
+
+
+# -- the analytic models and measured data ----------------------------------------------------
+from project import models  # noqa: E402
+from project.measured import read_merl  # noqa: E402
+
+
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_minnaert_with_integer_exponent_terminates(k):
+    # f cos cos = c (z_i z_o)^k, and z^k = (1 - rho^2)^k is a combination of R_2j^0, j <= k:
+    # every coefficient of degree > 2k vanishes and order 2k represents it exactly
+    cm = project(models.Minnaert(k, 0.6), HemiZernike(2 * k + 4))
+    deg = cm.basis.degree
+    high = (deg[:, None] > 2 * k) | (deg[None, :] > 2 * k)
+    scale = np.max(np.abs(cm.matrix))
+    assert np.max(np.abs(cm.matrix[high])) <= 1e-14 * scale  # rounding of exact rules
+    assert np.max(np.abs(cm.matrix[~high])) > 0.01 * scale
+    # the Parseval estimate resolves ~1e-8 (a difference of squares, see truncation_error)
+    assert cm.info["truncation_error"] < 1e-6
+
+
+def test_lambert_model_is_one_mode():
+    cm = project(models.Lambert([0.2, 0.5, 0.8]), HemiZernike(8), quantity="f")
+    modes = cm.to_modes()
+    # f = a / pi = 2 a K_0^0 K_0^0: the first mode is 2a, the rest rounding
+    np.testing.assert_allclose(modes[:, 0], [0.4, 1.0, 1.6], rtol=1e-14)
+    assert np.max(np.abs(modes[:, 1:])) < 1e-14
+
+
+@pytest.mark.parametrize("distribution", ["beckmann", "ggx"])
+def test_cook_torrance_error_falls_with_order(distribution):
+    brdf = models.CookTorrance(0.3, 0.4, distribution=distribution, ior=1.5)
+    errors = []
+    for order in (2, 4, 8, 12):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # order 2 misses > 10 %
+            cm = project(brdf, HemiZernike(order))
+        assert cm.info["converged"]
+        errors.append(cm.info["truncation_error"])
+    # a converging sequence (seen: 0.21, 0.15, 0.075, 0.039 Beckmann; 0.13, 0.091, 0.044,
+    # 0.025 GGX): decreasing, and from order 4 on each step at least a factor 1.5
+    assert all(b < a for a, b in zip(errors, errors[1:], strict=False)), errors
+    assert errors[2] < errors[1] / 1.5 and errors[3] < errors[2] / 1.5, errors
+    assert errors[-1] < 0.05
+
+
+def test_projected_albedo_matches_the_model():
+    brdf = models.Phong(0.3, 0.5, 20)
+    cm = project(brdf, HemiZernike(16))
+    assert cm.info["truncation_error"] < 0.03
+    wi = np.stack([np.sin(t := np.radians([0.0, 30.0, 60.0])), 0 * t, np.cos(t)], axis=-1)
+    # the albedo integrates the truncated expansion exactly; its error is the projection
+    # error of a(theta) cos(theta), which is smooth: 2e-3 leaves ~5x margin over what is seen
+    np.testing.assert_allclose(cm.albedo(wi), brdf.albedo(wi), rtol=0, atol=2e-3)
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of CookTorrance")  # order 8 misses 15 %
+def test_projection_is_reciprocal_to_rounding(unit_vectors):
+    cm = project(models.CookTorrance(0.2, 0.3, distribution="ggx", ior=1.5), HemiZernike(8),
+                 tol=1e-6)
+    wi, wo = unit_vectors(200, upper=True), unit_vectors(200, upper=True)
+    a, b = cm.eval(wi, wo), cm.eval(wo, wi)
+    np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-14)
+
+
+def test_glossy_paint_mirror_is_exact_in_albedo():
+    cm = project(models.GlossyPaint([0.5, 0.4, 0.3], 0.02), HemiZernike(8))
+    wi = np.stack([np.sin(t := np.radians([0.0, 45.0, 80.0])), 0 * t, np.cos(t)], axis=-1)
+    # see test_mirror_term_albedo_exact_in_zernike; 1 / cos(80 deg) = 5.8 amplifies rounding
+    np.testing.assert_allclose(cm.albedo(wi), np.tile([0.52, 0.42, 0.32], (3, 1)), atol=1e-12)
+    assert cm.info["truncation_error"] is None  # a delta has no finite L2 norm
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of MERLBRDF")  # order 8 misses 36 %
+def test_merl_surrogate_projects_all_channels(merl_surrogate):
+    brdf = read_merl(merl_surrogate("gold-metallic-paint"))
+    cm = project(brdf, HemiZernike(8), tol=1e-3)
+    assert cm.channels == 3 and cm.is_isotropic and cm.info["converged"]
+    w = np.array([[0.0, 0.0, 1.0], [0.5, 0.0, np.sqrt(0.75)]])
+    # trilinear table data converge algebraically; the order-8 truncation misses ~36 % of
+    # the L2 norm, but the albedo (an integral) is far more accurate: 5 % bound
+    np.testing.assert_allclose(cm.albedo(w), brdf.albedo(w, n_theta=128, n_phi=256),
+                               rtol=0.05)

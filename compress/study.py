@@ -1,0 +1,462 @@
+"""Error/resolution studies: one row per (basis kind, order) with sizes, timings and errors.
+
+Sampling (the "test set")
+-------------------------
+Errors are measured against the BRDF itself, never against another representation:
+
+- isotropic BRDFs: the product rule over H x H in (z_i, z_o, dphi): ``nodes[0]``
+  Gauss-Legendre nodes in each cosine and ``nodes[1]`` uniform azimuth differences in
+  [0, 2 pi), phi_i = 0. Weights integrate over H x H in solid angle (they sum to (2 pi)^2).
+- anisotropic BRDFs: ``nodes[0]^2 nodes[1]`` scrambled Sobol pairs (seeded), uniform in solid
+  angle, equal weights.
+
+Metrics (per channel, the table shows the largest over channels):
+
+=================  ==========================================================================
+``l2``             cosine-weighted relative L2 error over all of H x H: ||q_hat - q|| / ||q||
+                   with q = f cos(theta_i) cos(theta_o) (seed-004 digest M2, relative; for
+                   quantity "f_cos" it equals the Parseval truncation error of the projection,
+                   up to the quadrature error of the test set)
+``max_abs``        max |f_hat - f| (1/sr)                                    [on the domain D]
+``rel_rms``        ||f_hat - f|| / ||f|| with weight cos^2(theta_i) (digest M3)          [D]
+``log_rms``        RMS of log(1 + f cos theta_i) - log(1 + max(f_hat, 0) cos theta_i)
+                   (digest M4; negative values clamped, as a renderer would)            [D]
+``smape``          mean of 100 |f_hat - f| / (|f_hat| + |f|) in percent (seed 004 eq. 30,
+                   absolute values in the denominator so negative f_hat stay in [0, 100];
+                   0 where both vanish)                                                 [D]
+``negative``       solid-angle fraction of H x H where f_hat < 0
+``albedo``         max over theta_i in D of |a_hat(theta_i) - a(theta_i)|, both by the same
+                   rule (isotropic test sets only; None otherwise)
+``reciprocity``    max |f_hat(wi, wo) - f_hat(wo, wi)| / max |f_hat|                    [D]
+=================  ==========================================================================
+
+D is the domain of seed 004: theta_i, theta_o < ``max_theta`` (default 1.4 rad = 80.2 deg);
+the pointwise metrics of f avoid the grazing band where f = q / (cos cos) is ill conditioned.
+Solid-angle weighted means are used throughout.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+import basis
+import project
+from basis import CoefficientMatrix
+from basis._validate import nonneg_int
+
+from ._io import atomic_path
+from .evaluate import FastEvaluator
+from .truncate import smooth as _smooth
+from .truncate import unique_coefficients
+
+__all__ = ["KINDS", "METRICS", "Study", "Samples", "errors", "make_basis", "pareto_front",
+           "study", "reference_samples"]
+
+#: Basis kinds by name: the hemisphere Zernike functions, Westin's odd hemisphere harmonics,
+#: the even completion, and the full-sphere harmonics (BRDF zero below the horizon).
+KINDS = ("zernike", "harmonics", "harmonics-even", "sh")
+#: Error columns of a study (see the module notes).
+METRICS = ("l2", "max_abs", "rel_rms", "log_rms", "smape", "negative", "albedo", "reciprocity")
+#: Default test set: Gauss nodes per cosine, azimuth differences.
+NODES = (40, 80)
+#: Polar angle limit of the domain D of the pointwise metrics (seed 004: theta < 1.4 rad).
+MAX_THETA = 1.4
+#: Evaluation is timed on this many pairs (best of three).
+TIMING_PAIRS = 1 << 18
+
+
+def make_basis(kind: str, order: int) -> basis.Basis:
+    """The basis named ``kind`` (one of :data:`KINDS`) at ``order``.
+
+    Examples
+    --------
+    >>> make_basis("harmonics", 4), make_basis("zernike", 2).size
+    (HemiHarmonics(4, parity='odd'), 6)
+    """
+    if kind == "zernike":
+        return basis.HemiZernike(order)
+    if kind == "harmonics":
+        if order == 0:
+            raise ValueError("order must be >= 1 for kind='harmonics' (the odd hemisphere "
+                             "harmonics start at degree 1), got 0")
+        return basis.HemiHarmonics(order, parity="odd")
+    if kind == "harmonics-even":
+        return basis.HemiHarmonics(order, parity="even")
+    if kind == "sh":
+        return basis.SphericalHarmonics(order)
+    raise ValueError(f"kind must be one of {', '.join(map(repr, KINDS))}, got {kind!r}")
+
+
+# -- the test set --------------------------------------------------------------------------
+@dataclass
+class Samples:
+    """Direction pairs, their solid-angle weights and the reference BRDF values.
+
+    Attributes
+    ----------
+    wi, wo : (n, 3) ndarray
+    weights : (n,) ndarray
+        Solid-angle quadrature weights on H x H (sum (2 pi)^2).
+    values : (n, channels) ndarray
+        The BRDF at the pairs.
+    domain : (n,) bool ndarray
+        Both polar angles below ``max_theta``.
+    grid : (nz, nz, nphi) or None
+        Shape of the isotropic product grid (pairs ordered z_i, z_o, dphi), None for Sobol.
+    seconds : float
+        Time spent evaluating the BRDF.
+    """
+
+    __test__ = False  # not a pytest class
+
+    wi: NDArray[np.float64]
+    wo: NDArray[np.float64]
+    weights: NDArray[np.float64]
+    values: NDArray[np.float64]
+    domain: NDArray[np.bool_]
+    grid: tuple[int, int, int] | None
+    seconds: float
+    description: str = ""
+
+
+def reference_samples(brdf: Any, *, nodes: tuple[int, int] = NODES, max_theta: float = MAX_THETA,
+             seed: int = 0) -> Samples:
+    """The pairs on which a study measures errors (see the module notes).
+
+    Parameters
+    ----------
+    brdf : BRDF
+    nodes : (n_z, n_phi)
+    max_theta : float
+        Polar-angle limit (radians) of the pointwise metrics' domain.
+    seed : int
+        Sobol scramble (anisotropic BRDFs only).
+    """
+    nz, nphi = (nonneg_int(v, "nodes") for v in nodes)
+    if nz < 1 or nphi < 1:
+        raise ValueError(f"nodes must be two positive integers, got {tuple(nodes)}")
+    if not 0 < max_theta <= np.pi / 2:
+        raise ValueError(f"max_theta must lie in (0, pi/2], got {max_theta!r}")
+    if getattr(brdf, "isotropic", False):
+        t, w = np.polynomial.legendre.leggauss(nz)
+        z, wz = 0.5 * (t + 1.0), 0.5 * w
+        s = np.sqrt((1.0 - z) * (1.0 + z))
+        dphi = 2.0 * np.pi * np.arange(nphi) / nphi
+        zi, zo, dp = np.meshgrid(z, z, dphi, indexing="ij")
+        si, so = np.meshgrid(s, s, dphi, indexing="ij")[:2]
+        wi = np.stack([si, np.zeros_like(si), zi], axis=-1).reshape(-1, 3)
+        wo = np.stack([so * np.cos(dp), -so * np.sin(dp), zo], axis=-1).reshape(-1, 3)
+        weights = (np.multiply.outer(np.multiply.outer(wz, wz), np.full(nphi, 2.0 * np.pi / nphi))
+                   * 2.0 * np.pi).reshape(-1)
+        grid: tuple[int, int, int] | None = (nz, nz, nphi)
+        desc = (f"isotropic product rule: {nz} Gauss nodes per cosine x {nphi} azimuth "
+                f"differences ({wi.shape[0]} pairs)")
+    else:
+        from scipy.stats import qmc
+
+        n = nz * nz * nphi
+        u = qmc.Sobol(d=4, scramble=True, seed=seed).random(n)
+        wi, wo = (_uniform_h(u[:, 0], u[:, 1]), _uniform_h(u[:, 2], u[:, 3]))
+        weights = np.full(n, (2.0 * np.pi) ** 2 / n)
+        grid = None
+        desc = f"{n} scrambled Sobol pairs (seed {seed}), uniform in solid angle"
+    t0 = time.perf_counter()
+    v = np.asarray(brdf.eval(wi, wo), dtype=np.float64).reshape(wi.shape[0], -1)
+    seconds = time.perf_counter() - t0
+    zmin = np.cos(max_theta)
+    domain = (wi[:, 2] > zmin) & (wo[:, 2] > zmin)
+    return Samples(wi, wo, weights, v, domain, grid, seconds,
+                   desc + f"; pointwise metrics on theta < {max_theta:.3g} rad")
+
+
+def _uniform_h(u: NDArray, v: NDArray) -> NDArray:
+    s = np.sqrt(np.maximum(0.0, 1.0 - u * u))
+    return np.stack([s * np.cos(2 * np.pi * v), s * np.sin(2 * np.pi * v), u], axis=-1)
+
+
+def _represented(cm: CoefficientMatrix, ts: Samples) -> NDArray[np.float64]:
+    """f_hat at the test pairs as (n, channels); no grazing lift (min_cos tiny) so that
+    f_hat cos cos is exactly the expansion q_hat."""
+    if cm.is_isotropic:
+        fe = FastEvaluator(cm, min_cos=1e-12)
+        out = np.empty((ts.wi.shape[0], cm.channels))
+        fe.eval_flat(ts.wi, ts.wo, out)
+        return out
+    return np.asarray(cm.eval(ts.wi, ts.wo, min_cos=1e-12)).reshape(ts.wi.shape[0], -1)
+
+
+def errors(cm: CoefficientMatrix, ts: Samples) -> dict[str, float | None]:
+    """Every metric of :data:`METRICS` for ``cm`` on the test set ``ts`` (module notes)."""
+    fh = _represented(cm, ts)
+    f = ts.values
+    if f.shape[1] != fh.shape[1] and 1 not in (f.shape[1], fh.shape[1]):
+        raise ValueError(f"channels differ: the BRDF has {f.shape[1]}, the matrix "
+                         f"{fh.shape[1]}")
+    f, fh = np.broadcast_arrays(f, fh)
+    w = ts.weights[:, None]
+    cc = (ts.wi[:, 2] * ts.wo[:, 2])[:, None]
+    q, qh = f * cc, fh * cc
+    out: dict[str, float | None] = {}
+    out["l2"] = _rel(np.sum(w * (qh - q) ** 2, axis=0), np.sum(w * q * q, axis=0))
+    d = ts.domain
+    fd, fhd, wd = f[d], fh[d], w[d]
+    zi = ts.wi[d, 2][:, None]
+    out["max_abs"] = float(np.max(np.abs(fhd - fd), initial=0.0))
+    out["rel_rms"] = _rel(np.sum(wd * zi**2 * (fhd - fd) ** 2, axis=0),
+                          np.sum(wd * zi**2 * fd**2, axis=0))
+    lg = np.log1p(fd * zi) - np.log1p(np.maximum(fhd, 0.0) * zi)
+    wsum = float(np.sum(wd)) or 1.0
+    out["log_rms"] = float(np.max(np.sqrt(np.sum(wd * lg * lg, axis=0) / wsum)))
+    den = np.abs(fhd) + np.abs(fd)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sm = np.where(den > 0, np.abs(fhd - fd) / np.where(den > 0, den, 1.0), 0.0)
+    out["smape"] = float(np.max(100.0 * np.sum(wd * sm, axis=0) / wsum))
+    out["negative"] = float(np.max(np.sum(w * (fh < 0), axis=0) / np.sum(w)))
+    if ts.grid is not None:
+        nz, _, nphi = ts.grid
+        ww = ts.weights.reshape(ts.grid)
+        wz_i = ww.sum(axis=(1, 2)) / (2.0 * np.pi) ** 2  # Gauss weight of each z_i
+        wo_w = ww / (2.0 * np.pi * wz_i[:, None, None])  # the w_o rule alone
+        diff = ((fh - f) * ts.wo[:, 2:3]).reshape(nz, nz, nphi, -1)
+        alb = np.einsum("abp,abpc->ac", wo_w, diff)
+        rows = ts.wi.reshape(nz, nz, nphi, 3)[:, 0, 0, 2] > np.cos(MAX_THETA)
+        out["albedo"] = float(np.max(np.abs(alb[rows]), initial=0.0))
+    else:
+        out["albedo"] = None
+    sub = np.flatnonzero(d)[:: max(1, int(np.sum(d)) // 20000)]
+    a = _represented(cm, Samples(ts.wi[sub], ts.wo[sub], ts.weights[sub], f[sub], d[sub],
+                                 None, 0.0))
+    b = _represented(cm, Samples(ts.wo[sub], ts.wi[sub], ts.weights[sub], f[sub], d[sub],
+                                 None, 0.0))
+    scale = float(np.max(np.abs(a), initial=0.0)) or 1.0
+    out["reciprocity"] = float(np.max(np.abs(a - b), initial=0.0)) / scale
+    return out
+
+
+def _rel(num: NDArray, den: NDArray) -> float:
+    with np.errstate(invalid="ignore", divide="ignore"):
+        r = np.where(den > 0, np.sqrt(num / np.where(den > 0, den, 1.0)), np.sqrt(num))
+    return float(np.max(r))
+
+
+def eval_ns(cm: CoefficientMatrix, *, pairs: int = TIMING_PAIRS, seed: int = 1) -> float:
+    """Nanoseconds per BRDF sample of the fastest evaluator of ``cm`` (best of three runs on
+    ``pairs`` random pairs; all threads; compilation excluded)."""
+    rng = np.random.default_rng(seed)
+    w = rng.normal(size=(2, pairs, 3))
+    w[..., 2] = np.abs(w[..., 2])
+    w /= np.linalg.norm(w, axis=-1, keepdims=True)
+    wi, wo = np.ascontiguousarray(w[0]), np.ascontiguousarray(w[1])
+    if cm.is_isotropic:
+        fe = FastEvaluator(cm)
+        out = np.empty((pairs, cm.channels))
+
+        def run() -> None:
+            fe.eval_flat(wi, wo, out)
+    else:
+        def run() -> None:
+            cm.eval(wi, wo)
+    run()
+    best = np.inf
+    for _ in range(3):
+        t0 = time.perf_counter()
+        run()
+        best = min(best, time.perf_counter() - t0)
+    return 1e9 * best / pairs
+
+
+# -- the study ----------------------------------------------------------------------------
+COLUMNS = ("kind", "order", "coefficients", "bytes", "projection_s", "eval_ns", *METRICS,
+           "truncation_error", "warnings")
+
+
+@dataclass
+class Study:
+    """A table of representations of one BRDF: one row per (kind, order).
+
+    Attributes
+    ----------
+    rows : list of dict
+        Keys :data:`COLUMNS`: ``coefficients`` is the number of unique stored reals
+        (symmetric, isotropic block storage, all channels), ``bytes`` that times 8 (float64,
+        as ``compress.save`` writes it), ``projection_s`` the projection's wall time,
+        ``eval_ns`` the evaluation time per sample, ``truncation_error`` the projection's
+        Parseval estimate, ``warnings`` the number of warnings the projection raised
+        (e.g. the Gibbs warning).
+    source : str
+        repr of the BRDF.
+    quantity : str
+    sampling : str
+        Description of the test set.
+    """
+
+    rows: list[dict[str, Any]]
+    source: str
+    quantity: str
+    sampling: str
+    messages: list[str] = field(default_factory=list)
+
+    def column(self, name: str) -> NDArray:
+        """One column as an array (None becomes NaN)."""
+        if name not in COLUMNS:
+            raise ValueError(f"name must be one of {', '.join(COLUMNS)}, got {name!r}")
+        vals = [r[name] for r in self.rows]
+        if name == "kind":
+            return np.array(vals, dtype=object)
+        return np.array([np.nan if v is None else v for v in vals], dtype=np.float64)
+
+    def to_markdown(self) -> str:
+        """The table as GitHub markdown, with the sampling and BRDF as a caption."""
+        head = ["kind", "order", "coefficients", "bytes", "projection s", "eval ns",
+                *METRICS]
+        lines = [f"Study of {self.source} (quantity {self.quantity!r}); {self.sampling}.", "",
+                 "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for r in self.rows:
+            cells = [r["kind"], str(r["order"]), str(r["coefficients"]), str(r["bytes"]),
+                     f"{r['projection_s']:.3g}", f"{r['eval_ns']:.3g}"]
+            cells += ["n/a" if r[m] is None else f"{r[m]:.3g}" for m in METRICS]
+            lines.append("| " + " | ".join(cells) + " |")
+        if self.messages:
+            lines += ["", f"{len(self.messages)} projection warning(s); the first: "
+                      f"{self.messages[0]}"]
+        return "\n".join(lines)
+
+    def pareto(self, cost: str = "eval_ns", metric: str = "l2") -> NDArray[np.bool_]:
+        """Mask of the rows on the Pareto front of (cost, error): no other row is at least
+        as cheap and at least as accurate, and strictly better in one."""
+        return pareto_front(self.column(cost), self.column(metric))
+
+    def plot(self, path: str, *, metric: str = "l2") -> Path:
+        """Write a PNG with three panels: error vs order, error vs bytes and error vs
+        evaluation time (one line per kind; the Pareto front over all rows marked).
+
+        Returns the path written (atomically).
+        """
+        if metric not in METRICS:
+            raise ValueError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        err = self.column(metric)
+        floor = np.nanmin(err[err > 0]) / 10 if np.any(err > 0) else 1e-16
+        err = np.where(err > 0, err, floor)
+        kinds = self.column("kind")
+        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+        for ax, xname, xlabel in zip(axes, ("order", "bytes", "eval_ns"),
+                                     ("order", "bytes (float64, symmetric storage)",
+                                      "evaluation time per sample (ns)"), strict=True):
+            x = self.column(xname)
+            for k in dict.fromkeys(kinds):
+                sel = kinds == k
+                ax.plot(x[sel], err[sel], "o-", label=str(k))
+            if xname != "order":
+                front = pareto_front(x, err)
+                order = np.argsort(x[front])
+                ax.step(x[front][order], err[front][order], where="post", color="k", lw=1,
+                        alpha=0.6, label="Pareto front")
+                ax.plot(x[front], err[front], "o", mfc="none", mec="k", ms=11)
+                ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(f"{metric} error")
+            ax.grid(True, which="both", alpha=0.3)
+        axes[0].legend()
+        axes[2].legend(fontsize=8)
+        fig.suptitle(f"{self.source}: {metric} error against order, storage and speed",
+                     fontsize=10)
+        fig.tight_layout()
+        with atomic_path(path, suffix=".png") as tmp:
+            fig.savefig(tmp, format="png", dpi=90)
+        plt.close(fig)
+        return Path(path)
+
+
+def pareto_front(cost: ArrayLike, error: ArrayLike) -> NDArray[np.bool_]:
+    """Mask of the points not dominated in (cost, error), both to be minimised.
+
+    Examples
+    --------
+    >>> pareto_front([1, 2, 3, 2], [5, 3, 4, 3]).tolist()
+    [True, True, False, True]
+    """
+    c = np.asarray(cost, dtype=np.float64)
+    e = np.asarray(error, dtype=np.float64)
+    if c.shape != e.shape or c.ndim != 1:
+        raise ValueError(f"cost and error must be 1-D of one length, got shapes {c.shape} "
+                         f"and {e.shape}")
+    le = (c[None, :] <= c[:, None]) & (e[None, :] <= e[:, None])
+    lt = (c[None, :] < c[:, None]) | (e[None, :] < e[:, None])
+    dominated = np.any(le & lt, axis=1)
+    return ~dominated
+
+
+def study(brdf: Any, kind: str | Sequence[str], orders: Sequence[int], *,
+          quantity: str = "f_cos", smooth: str | None = None, nodes: tuple[int, int] = NODES,
+          max_theta: float = MAX_THETA, seed: int = 0, time_eval: bool = True,
+          **project_kwargs: Any) -> Study:
+    """Project ``brdf`` at each order of each kind and measure every metric.
+
+    Parameters
+    ----------
+    brdf : BRDF
+    kind : str or sequence of str
+        Basis kinds, :data:`KINDS`: ``"zernike"`` (HemiZernike), ``"harmonics"``
+        (HemiHarmonics, odd: Westin's choice), ``"harmonics-even"``, ``"sh"``
+        (SphericalHarmonics). Several kinds put several curves on one chart.
+    orders : sequence of int
+    quantity : {"f_cos", "f"}
+    smooth : {"half-gaussian", "lanczos", "hann"}, optional
+        Apply :func:`compress.smooth` with its defaults to every projection (the row's kind
+        reads e.g. ``"zernike/hann"``).
+    nodes, max_theta, seed
+        The test set (module notes).
+    time_eval : bool
+        Measure ``eval_ns`` (about 0.05 s per row); NaN otherwise.
+    **project_kwargs
+        Passed to :func:`project.project` (``method``, ``tol``, ...).
+
+    Returns
+    -------
+    Study
+    """
+    kinds = (kind,) if isinstance(kind, str) else tuple(kind)
+    if not kinds:
+        raise ValueError("kind must name at least one basis kind")
+    for k in kinds:
+        if k not in KINDS:
+            raise ValueError(f"kind must be one of {', '.join(map(repr, KINDS))}, got {k!r}")
+    orders = [nonneg_int(o, "orders") for o in orders]
+    if not orders:
+        raise ValueError("orders must hold at least one order")
+    ts = reference_samples(brdf, nodes=nodes, max_theta=max_theta, seed=seed)
+    rows, messages = [], []
+    for k in kinds:
+        for order in orders:
+            b = make_basis(k, order)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                cm = project.project(brdf, b, quantity=quantity, **project_kwargs)
+            messages += [str(c.message) for c in caught]
+            if smooth is not None:
+                cm = _smooth(cm, smooth)
+            row: dict[str, Any] = dict(kind=k if smooth is None else f"{k}/{smooth}",
+                                       order=order, coefficients=unique_coefficients(cm))
+            row["bytes"] = 8 * row["coefficients"]
+            row["projection_s"] = float(cm.info.get("seconds", np.nan))
+            row["eval_ns"] = eval_ns(cm) if time_eval else float("nan")
+            row.update(errors(cm, ts))
+            row["truncation_error"] = cm.info.get("truncation_error")
+            row["warnings"] = len(caught)
+            rows.append(row)
+    return Study(rows, repr(brdf), quantity, ts.description, messages)
+
