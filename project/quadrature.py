@@ -279,13 +279,14 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluatio
     grading = 1
     if iso:
         # pilot on the coarse z rule: keep the azimuth rule (uniform or graded) whose change
-        # from 8 (order + 1) to 16 (order + 1) azimuths is smaller
+        # from 16 (order + 1) to 32 (order + 1) azimuths is smaller by 10x (the graded rule
+        # starts slower, so a coarser comparison picks the uniform one for half-vector lobes)
         change = {}
         for g in (1, GRADING):
-            a, ev_a, _ = _iso_rule(brdf, basis, quantity, nz, 8 * (order + 1), g)
-            b, ev_b, _ = _iso_rule(brdf, basis, quantity, nz, 16 * (order + 1), g)
+            a, ev_a, _ = _iso_rule(brdf, basis, quantity, nz, 16 * (order + 1), g)
+            b, ev_b, _ = _iso_rule(brdf, basis, quantity, nz, 32 * (order + 1), g)
             change[g], evals = _diff(b, a)[0], evals + ev_a + ev_b
-        grading = GRADING if change[GRADING] < 0.5 * change[1] else 1
+        grading = GRADING if change[GRADING] < 0.1 * change[1] else 1
         step = partial(_iso_rule, grading=grading)
     cur, ev, norm2 = step(brdf, basis, quantity, nz, nphi)
     evals += ev
