@@ -29,6 +29,9 @@ test: $(VENV)/.installed-test
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
 	$(BIN)/python tests/benchmarks/bench_basis.py
+	$(BIN)/python tests/benchmarks/bench_project.py
+	$(BIN)/python tests/benchmarks/bench_simulate.py
+	$(BIN)/python tests/benchmarks/bench_compress.py
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check basis project compress tests
