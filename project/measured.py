@@ -91,7 +91,6 @@ from __future__ import annotations
 
 import math
 import os
-import secrets
 import warnings
 from pathlib import Path
 
@@ -103,6 +102,7 @@ from basis._jit import pjit, prange
 from basis._validate import choice
 from basis.directions import from_rusinkiewicz
 
+from ._io import atomic_path
 from .brdf import BRDF
 
 __all__ = [
@@ -547,16 +547,6 @@ def _sample(brdf: object) -> NDArray[np.float64]:
 
 def _write_atomic(path: Path, chunks: tuple[bytes, ...]) -> None:
     """Write ``chunks`` to a temporary file beside ``path``, then rename it over ``path``."""
-    tmp = path.with_name(f".{path.name}.{secrets.token_hex(6)}.tmp")
-    flags = os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0)
-    fd = os.open(tmp, flags, 0o666)  # the umask applies, as for open(path, "wb")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with atomic_path(path, suffix=".tmp") as tmp, open(tmp, "wb") as f:
+        for chunk in chunks:
+            f.write(chunk)

@@ -31,6 +31,7 @@ import numpy as np
 from basis import Basis, CoefficientMatrix
 from basis._jit import pjit, prange
 
+from .._io import atomic_path
 from .surface import Heightfield
 from .trace import _alloc, _positive_int, _run, _seed, incident_directions
 
@@ -350,15 +351,13 @@ def _check_writable(path: Path) -> None:
 def _save(path: Path, acc: dict[str, Any], meta: dict[str, Any], done: int) -> None:
     import h5py
 
-    tmp = path.with_name(path.name + ".tmp")
-    with h5py.File(tmp, "w") as f:
+    with atomic_path(path, suffix=".tmp") as tmp, h5py.File(tmp, "w") as f:
         f.attrs["format"] = _FORMAT
         f.attrs["directions_done"] = done
         for key, val in meta.items():
             f.attrs["meta_" + key] = val if key != "seeds" else np.asarray(val, np.uint64)
         for key, val in acc.items():
             f.create_dataset(key, data=val)
-    os.replace(tmp, path)
 
 
 def _load(path: Path, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], int]:
