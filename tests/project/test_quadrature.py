@@ -74,7 +74,7 @@ def test_polynomial_brdf_matches_dense_rule(basis, quantity, aniso):
     scale = np.max(np.abs(ref))
     np.testing.assert_allclose(cm.matrix, ref, rtol=0, atol=1e-13 * scale)
     # the estimate compares with the previous (inexact) rule, so it only has to meet tol
-    assert cm.info["converged"] and cm.info["error_estimate"] <= 1e-8 * scale
+    assert cm.info["converged"] and cm.info["error_estimate"] <= 1e-6 * scale  # default tol
     assert cm.info["method"] == "quadrature"
 
 
