@@ -1,39 +1,296 @@
-"""The ``scatmodes`` command line."""
+"""The ``scatmodes`` command line.
+
+Commands: ``demo`` (no data files needed), ``project`` (an analytic model or a MERL file),
+``convert`` (MERL file -> HDF5, the same as ``project --merl``), ``fit`` (a table of
+measurements), ``simulate`` (the microgeometry simulator), ``study`` (error and speed against
+order) and ``info``. Every command has ``--help`` with examples.
+
+A problem with the input (unknown model, bad parameter, missing or unreadable file,
+unwritable output, bad order, ...) prints exactly one line ``scatmodes <command>: error:
+...`` on stderr and exits with status 2, never a traceback. Library warnings (e.g. Gibbs
+ringing of a sharp BRDF at a low order) print as ``scatmodes <command>: warning: ...``.
+Long work shows a tqdm progress bar on stderr when stderr is a terminal (``--progress`` /
+``--no-progress`` to force it either way).
+"""
 
 from __future__ import annotations
 
 import argparse
+import inspect
+import os
 import sys
+import time
+import warnings
 from pathlib import Path
+from typing import Any
+
+KINDS = ("zernike", "harmonics", "harmonics-even", "sh")  # = compress.study.KINDS
+
+#: Parameters of each model in the help examples and in the hints of error messages.
+MODEL_EXAMPLES = {
+    "Lambert": "albedo=0.5",
+    "Minnaert": "k=1.5 albedo=0.5",
+    "OrenNayar": "albedo=0.5 sigma=0.3",
+    "Phong": "kd=0.3 ks=0.4 n=20",
+    "BlinnPhong": "kd=0.3 ks=0.4 n=40",
+    "Ward": "kd=0.2 ks=0.1 alpha_x=0.2 alpha_y=0.2",
+    "CookTorrance": "kd=0.2 roughness=0.3 distribution=ggx ior=1.5",
+    "AshikhminShirley": "rd=0.3 rs=0.1 nu=50 nv=50",
+    "Lafortune": "kd=0.2 'lobes=-0.8,-0.8,0.8,20'",
+    "GlossyPaint": "albedo=0.5 specular=0.02",
+}
 
 
 class UserError(Exception):
     """A problem with the user's input: reported in one line, exit status 2."""
 
 
-def _demo(args: argparse.Namespace) -> int:
-    from .demo import basis_table, plot_modes, to_markdown
-
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    print("scatmodes demo: orthonormal bases for BRDFs\n")
-    print("Each basis evaluated at random directions; orthonormality error = max |G - I| of")
-    print("its Gram matrix on an exact product quadrature rule.\n")
-    orders = _orders(args.orders)
-    print(to_markdown(basis_table(orders=orders, points=args.points)))
-    png = plot_modes(out / "modes.png", order=4)
-    print(f"\nwrote {png} (the isotropic modes up to order 4 at theta_i = 45 deg)")
-    return 0
+#: exceptions reported as one line (the library raises ValueError/TypeError for bad values
+#: and kinds, OSError for files, MemoryError for sizes it refuses to allocate)
+USER_ERRORS = (UserError, ValueError, TypeError, MemoryError, OSError)
 
 
-def _orders(text: str) -> tuple[int, ...]:
+class _Parser(argparse.ArgumentParser):
+    """argparse with one-line errors (no usage block): ``<prog>: error: <message>``."""
+
+    def error(self, message: str) -> None:  # type: ignore[override]
+        self.exit(2, f"{self.prog}: error: {message} (see '{self.prog} --help')\n")
+
+
+# -- argument types --------------------------------------------------------------------------
+def _order(text: str) -> int:
+    try:
+        n = int(text)
+    except ValueError:
+        n = -1
+    if n < 0:
+        raise argparse.ArgumentTypeError(f"must be an integer >= 0, got {text!r}")
+    return n
+
+
+def _count(text: str) -> int:
+    try:
+        n = int(float(text)) if "e" in text.lower() else int(text)
+    except ValueError:
+        n = 0
+    if n <= 0:
+        raise argparse.ArgumentTypeError(f"must be a positive integer (e.g. 30000 or 3e4), "
+                                         f"got {text!r}")
+    return n
+
+
+def _positive(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not x > 0 or x == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return x
+
+
+def _nonneg(text: str) -> float:
+    try:
+        x = float(text)
+    except ValueError:
+        x = float("nan")
+    if not 0 <= x < float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a number >= 0, got {text!r}")
+    return x
+
+
+def _orders(text: str, name: str = "--orders") -> tuple[int, ...]:
     try:
         orders = tuple(int(o) for o in text.split(","))
     except ValueError:
         orders = ()
     if not orders or min(orders) < 0:
-        raise UserError(f"--orders must be comma-separated integers >= 0, got {text!r}")
+        raise UserError(f"{name} must be comma-separated integers >= 0, got {text!r}")
     return orders
+
+
+def _kinds(text: str) -> tuple[str, ...]:
+    kinds = tuple(k.strip() for k in text.split(",") if k.strip())
+    bad = [k for k in kinds if k not in KINDS]
+    if not kinds or bad:
+        raise UserError(f"--kinds must be comma-separated basis kinds from {', '.join(KINDS)}, "
+                        f"got {text!r}")
+    return kinds
+
+
+# -- models and files ------------------------------------------------------------------------
+def model_classes() -> dict[str, type]:
+    """The analytic models of :mod:`project.models` by name."""
+    from project import BRDF, models
+
+    return {n: getattr(models, n) for n in models.__all__
+            if isinstance(getattr(models, n), type) and issubclass(getattr(models, n), BRDF)}
+
+
+def _param_value(text: str) -> Any:
+    """A number, a comma list of numbers, lists separated by ';', None, or a word."""
+    if ";" in text:
+        return [_param_value(part) for part in text.split(";") if part.strip()]
+    if "," in text:
+        return [float(x) for x in text.split(",")]
+    if text.lower() == "none":
+        return None
+    try:
+        return float(text)
+    except ValueError:
+        return text
+
+
+def parse_model(name: str, params: list[str]) -> Any:
+    """Build ``project.models.<name>`` from ``KEY=VALUE`` strings (name case-insensitive)."""
+    classes = model_classes()
+    lookup = {n.lower(): n for n in classes}
+    if name.lower() not in lookup:
+        raise UserError(f"MODEL must be one of {', '.join(classes)}, got {name!r}")
+    cname = lookup[name.lower()]
+    cls = classes[cname]
+    sig = inspect.signature(cls)
+    kw: dict[str, Any] = {}
+    for p in params:
+        key, eq, value = p.partition("=")
+        key = key.strip()
+        if not eq or not key or not value.strip():
+            raise UserError(f"--param must be KEY=VALUE, got {p!r}")
+        if key not in sig.parameters:
+            raise UserError(f"--param {key!r} is not a parameter of {cname}, which takes "
+                            f"{', '.join(sig.parameters)}")
+        try:
+            kw[key] = _param_value(value.strip())
+            if key == "lobes" and kw[key] and not isinstance(kw[key][0], list):
+                kw[key] = [kw[key]]  # one lobe Cx,Cy,Cz,n
+        except ValueError:
+            raise UserError(f"--param {key} must be a number, a comma list of numbers or a "
+                            f"word, got {value!r}") from None
+    missing = [k for k, v in sig.parameters.items() if v.default is inspect.Parameter.empty
+               and v.kind is not inspect.Parameter.VAR_KEYWORD and k not in kw]
+    if missing:
+        raise UserError(f"{cname} needs --param for {', '.join(missing)} (e.g. --param "
+                        f"{' --param '.join(MODEL_EXAMPLES.get(cname, '').split())})")
+    return cls(**kw)
+
+
+def _source(args: argparse.Namespace) -> Any:
+    """The BRDF named by MODEL (+ --param) or --merl."""
+    if args.merl is not None:
+        if args.model is not None:
+            raise UserError(f"give either MODEL or --merl, not both (got {args.model!r} and "
+                            f"--merl {args.merl!r})")
+        if args.param:
+            raise UserError("--param applies to MODEL, not to --merl")
+        from project.measured import read_merl
+
+        _input_file(args.merl, "--merl")
+        return read_merl(args.merl)
+    if args.model is None:
+        raise UserError("give a MODEL (e.g. Phong --param kd=0.3 --param ks=0.4 --param n=20) "
+                        "or --merl FILE.binary")
+    return parse_model(args.model, args.param)
+
+
+def _input_file(path: str, name: str) -> Path:
+    p = Path(path)
+    if not p.exists():
+        raise UserError(f"{name} file {path!r} does not exist")
+    if p.is_dir():
+        raise UserError(f"{name} must be a file, got the directory {path!r}")
+    if not os.access(p, os.R_OK):
+        raise UserError(f"{name} file {path!r} is not readable")
+    return p
+
+
+def _output_file(path: str, name: str = "-o") -> Path:
+    """Check before any work that ``path`` can be written (its folder exists, is writable)."""
+    p = Path(path)
+    folder = p.parent if str(p.parent) else Path(".")
+    if p.is_dir():
+        raise UserError(f"{name} must name a file, got the directory {path!r}")
+    if not folder.is_dir():
+        raise UserError(f"cannot write {name} {path!r}: directory {str(folder)!r} does not "
+                        "exist")
+    if not os.access(folder, os.W_OK | os.X_OK) or (p.exists() and not os.access(p, os.W_OK)):
+        raise UserError(f"cannot write {name} {path!r}: permission denied")
+    return p
+
+
+def _output_dir(path: str, name: str = "--out") -> Path:
+    p = Path(path)
+    if p.exists() and not p.is_dir():
+        raise UserError(f"{name} must be a directory, got the file {path!r}")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise UserError(f"cannot create {name} directory {path!r}: "
+                        f"{err.strerror or err}") from None
+    if not os.access(p, os.W_OK | os.X_OK):
+        raise UserError(f"cannot write to {name} directory {path!r}: permission denied")
+    return p
+
+
+def _progress(args: argparse.Namespace) -> bool:
+    flag = getattr(args, "progress", None)
+    return sys.stderr.isatty() if flag is None else bool(flag)
+
+
+def _bar(iterable: Any, args: argparse.Namespace, desc: str, total: int | None = None) -> Any:
+    from tqdm.auto import tqdm
+
+    return tqdm(iterable, desc=desc, total=total, disable=not _progress(args), leave=False,
+                file=sys.stderr, unit="step")
+
+
+def _basis(kind: str, order: int) -> Any:
+    from compress import make_basis
+
+    return make_basis(kind, order)
+
+
+# -- commands --------------------------------------------------------------------------------
+def _demo(args: argparse.Namespace) -> int:
+    from . import demo
+
+    out = _output_dir(args.out)
+    orders = _orders(args.orders)
+    study_orders = _orders(args.study_orders, "--study-orders")
+    print("scatmodes demo: orthonormal bases for BRDFs\n")
+    print("1. Each basis evaluated at random directions; orthonormality error = max |G - I| "
+          "of")
+    print("its Gram matrix on an exact product quadrature rule.\n")
+    print(demo.to_markdown(demo.basis_table(orders=orders, points=args.points)))
+    png = demo.plot_modes(out / "modes.png", order=4)
+    print(f"\nwrote {png} (the isotropic modes up to order 4 at theta_i = 45 deg)\n")
+
+    print("2. Two built-in models projected at orders "
+          f"{', '.join(map(str, study_orders))} (f cos cos, quadrature); errors against the "
+          "model itself.")
+    print("resolution = 180 deg / order, the half period of the highest degree kept; l2 = "
+          "relative L2 error over H x H.\n")
+    rows, md = [], []
+    items = list(demo.demo_models().items())
+    for name, brdf in _bar(items, args, "study"):
+        st = demo.model_study(brdf, study_orders)
+        rows += demo.resolution_rows(name, st)
+        md.append(st.to_markdown())
+        st.plot(str(out / f"study-{name}.png"))
+    (out / "study.md").write_text("\n\n".join(md) + "\n", encoding="utf-8")
+    print(demo.to_markdown(rows))
+    print(f"\nwrote {out / 'study.md'} (all metrics) and "
+          f"{', '.join(str(out / f'study-{n}.png') for n, _ in items)}\n")
+
+    if args.rays > 0:
+        print(f"3. Monte Carlo microgeometry: {args.rays} rays through a Gaussian surface "
+              "(sigma/tau = 1/6.5, mirror facets), HemiZernike(8), against Beckmann + Smith.\n")
+        sim = demo.simulate_demo(rays=args.rays, resolution=args.resolution, seed=1,
+                                 progress=_progress(args))
+        for line in sim["lines"]:
+            print(line)
+        png = demo.plot_inplane(out / "simulated.png", sim["curves"], title=sim["title"])
+        print(f"\nwrote {png} (in-plane f cos(theta_o): simulation, model, model projected)")
+    return 0
 
 
 def _info(args: argparse.Namespace) -> int:
@@ -50,36 +307,378 @@ def _info(args: argparse.Namespace) -> int:
         print(f"{cls.__name__}: order <= {cls.max_order}")
     print(f"HelmholtzModes: order <= {basis.HelmholtzModes.max_order_isotropic} (isotropic), "
           f"<= {basis.HelmholtzModes.max_order_general} (general)")
+    print(f"basis kinds (--basis, --kinds): {', '.join(KINDS)}")
+    print(f"models (MODEL): {', '.join(model_classes())}")
     return 0
 
 
+def _describe(cm: Any) -> str:
+    from compress import unique_coefficients
+
+    n = unique_coefficients(cm)
+    return (f"{cm.basis!r}, quantity {cm.quantity}, {cm.channels} channel(s), {n} "
+            f"coefficients ({8 * n} bytes)")
+
+
+def _fmt(x: Any) -> str:
+    return "n/a" if x is None else f"{x:.3g}"
+
+
+def _project(args: argparse.Namespace) -> int:
+    from compress import save
+    from project import project
+
+    out = _output_file(args.output)
+    brdf = _source(args)
+    b = _basis(args.basis, args.order)
+    tol = args.tol if args.tol is not None else (1e-3 if args.merl is not None else 1e-6)
+    cm = project(brdf, b, quantity=args.quantity, method=args.method, tol=tol)
+    save(cm, out)
+    info = cm.info
+    nodes = info.get("nodes")
+    nodes_text = (" x ".join(map(str, nodes)) if isinstance(nodes, tuple | list)
+                  else str(nodes))
+    print(f"wrote {out}: {brdf!r} in {_describe(cm)}; nodes {nodes_text}, error estimate "
+          f"{_fmt(info.get('error_estimate'))}, truncation error "
+          f"{_fmt(info.get('truncation_error'))}, {info.get('seconds', float('nan')):.2f} s")
+    return 0
+
+
+def _convert(args: argparse.Namespace) -> int:
+    args.merl, args.model, args.param = args.file, None, []
+    return _project(args)
+
+
+def _fit(args: argparse.Namespace) -> int:
+    from compress import save
+    from project import fit, read_table
+
+    out = _output_file(args.output)
+    table = _input_file(args.table, "TABLE")
+    wi, wo, values = read_table(table)
+    b = _basis(args.basis, args.order)
+    t0 = time.perf_counter()
+    cm = fit(wi, wo, values, b, quantity=args.quantity, isotropic=args.isotropic,
+             regularization=args.regularization)
+    seconds = time.perf_counter() - t0
+    cm.info.setdefault("source", f"fit to {table.name}")
+    save(cm, out)
+    i = cm.info
+    resid = ", ".join(f"{r:.3g}" for r in i["residual_rms"])
+    print(f"wrote {out}: {_describe(cm)}; {i['samples']} samples, condition number "
+          f"{i['condition_number']:.3g}, rank {i['rank']} of {i['unknowns']} unknowns, "
+          f"residual RMS {resid} ({args.quantity}), {seconds:.2f} s")
+    return 0
+
+
+def _simulate(args: argparse.Namespace) -> int:
+    from compress import save
+    from project.microgeometry import Diffuse, GaussianSurface, Mirror, simulate
+
+    out = _output_file(args.output)
+    if args.checkpoint is not None:
+        _output_file(args.checkpoint, "--checkpoint")
+    if args.resume is not None:
+        _input_file(args.resume, "--resume")
+    if args.material == "mirror":
+        if args.albedo is not None:
+            raise UserError("--albedo applies to --material diffuse (mirror facets take --ior)")
+        material = Mirror(args.ior)
+    else:
+        if args.ior is not None:
+            raise UserError("--ior applies to --material mirror (diffuse facets take "
+                            "--albedo)")
+        material = Diffuse(1.0 if args.albedo is None else args.albedo)
+    surface = GaussianSurface(args.sigma, args.tau, resolution=args.resolution,
+                              seed=args.surface_seed, material=material)
+    b = _basis(args.basis, args.order)
+    res = simulate(surface, b, rays=args.rays, seed=args.seed, checkpoint=args.checkpoint,
+                   resume=args.resume, progress=_progress(args))
+    save(res.matrix, out)
+    e = res.energy
+    total = e["reflected"] + e["absorbed"] + e["escaped"]
+    print(f"{surface!r}: measured Beckmann roughness m = {surface.roughness:.4f}")
+    err = res.matrix.info["stderr_max"]  # NaN with a single chunk of directions
+    print(f"traced {res.rays} rays in {res.seconds:.2f} s ({res.rays_per_second:.3g} rays/s); "
+          f"Q = {res.asymmetry:.3g}; largest standard error "
+          f"{'n/a (one batch)' if err != err else f'{err:.3g}'}")
+    print(f"energy per unit incident: reflected {e['reflected']:.4f}, absorbed "
+          f"{e['absorbed']:.4f}, escaped {e['escaped']:.4f} (sum {total:.4f}); single "
+          f"scattering {res.single_scatter:.4f}")
+    print(f"wrote {out}: {_describe(res.matrix)}")
+    return 0
+
+
+def _study(args: argparse.Namespace) -> int:
+    from compress import METRICS, Study, study
+
+    if args.stability:
+        return _stability(args)
+    if args.metric not in METRICS:
+        raise UserError(f"--metric must be one of {', '.join(METRICS)}, got {args.metric!r}")
+    kinds = _kinds(args.kinds)
+    orders = _orders(args.orders)
+    out = _output_dir(args.out)
+    brdf = _source(args)
+    kw: dict[str, Any] = {}
+    if args.tol is not None or args.merl is not None:
+        kw["tol"] = args.tol if args.tol is not None else 1e-3
+    rows, messages, first = [], [], None
+    pairs = [(k, o) for k in kinds for o in orders]
+    for k, o in _bar(pairs, args, "study", total=len(pairs)):
+        part = study(brdf, k, [o], quantity=args.quantity, smooth=args.smooth, **kw)
+        first = first or part
+        rows += part.rows
+        messages += part.messages
+    st = Study(rows, first.source, first.quantity, first.sampling, messages)
+    text = st.to_markdown()
+    (out / "study.md").write_text(text + "\n", encoding="utf-8")
+    png = st.plot(str(out / "study.png"), metric=args.metric)
+    print(text)
+    print(f"\nwrote {out / 'study.md'} and {png}")
+    return 0
+
+
+def _stability(args: argparse.Namespace) -> int:
+    from compress.stability import write_all
+
+    if args.model is not None or args.merl is not None:
+        raise UserError("--stability takes no MODEL or --merl: it measures the library itself")
+    out = _output_dir(args.out)
+    print(f"writing the stability atlas to {out} ({'small' if args.small else 'full'} size; "
+          "the full size takes several minutes)")
+    for md, png in write_all(out, small=args.small).values():
+        print(f"wrote {md} and {png}")
+    return 0
+
+
+# -- the parser ------------------------------------------------------------------------------
+def _add_basis(p: argparse.ArgumentParser, *, kinds: tuple[str, ...] = KINDS,
+               quantity: str = "f_cos", order: int | None = 8) -> None:
+    p.add_argument("--basis", choices=kinds, default="zernike",
+                   help="hemisphere Zernike functions, odd or even hemisphere harmonics, or "
+                        "full-sphere harmonics (default %(default)s)")
+    p.add_argument("--order", type=_order, default=order, metavar="N",
+                   help="basis order, inclusive (default %(default)s)")
+    p.add_argument("--quantity", choices=("f_cos", "f"), default=quantity,
+                   help="what the matrix represents: f cos(theta_i) cos(theta_o) or f "
+                        "(default %(default)s)")
+
+
+def _add_source(p: argparse.ArgumentParser) -> None:
+    p.add_argument("model", nargs="?", metavar="MODEL",
+                   help="an analytic model of project.models: "
+                        f"{', '.join(MODEL_EXAMPLES)} (case-insensitive)")
+    p.add_argument("--param", action="append", default=[], metavar="KEY=VALUE",
+                   help="a model parameter, repeated: a number, a comma list (per channel), "
+                        "';'-separated lists (Lafortune lobes) or a word (distribution=ggx)")
+    p.add_argument("--merl", metavar="FILE.binary", help="a MERL .binary file instead of MODEL")
+    p.add_argument("--tol", type=_positive, default=None,
+                   help="quadrature tolerance on the coefficients, relative (default 1e-6 for "
+                        "models, 1e-3 for MERL tables, which converge slowly)")
+
+
+def _add_progress(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                   help="show progress bars (default: when stderr is a terminal)")
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="scatmodes",
+    fmt = argparse.RawDescriptionHelpFormatter
+    p = _Parser(
+        prog="scatmodes", formatter_class=fmt,
         description="Reflectance functions in orthonormal spherical bases: what each "
-                    "representation costs and how accurate it is.")
-    sub = p.add_subparsers(dest="command", required=True)
-    d = sub.add_parser("demo", help="show the bases and write a picture of the modes "
-                                    "(no data files needed)")
-    d.add_argument("--out", default="scatmodes-out", help="output folder (default %(default)s)")
+                    "representation costs and how accurate it is.",
+        epilog="examples:\n  scatmodes demo\n  scatmodes project Phong --param kd=0.3 "
+               "--param ks=0.4 --param n=20 --order 8 -o phong.h5\n  scatmodes study "
+               "CookTorrance --param kd=0.2 --param roughness=0.3 --orders 2,4,8\n\n"
+               "Errors print one line and exit with status 2. 'scatmodes COMMAND --help' "
+               "for each command.")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    d = sub.add_parser(
+        "demo", formatter_class=fmt,
+        help="bases, two models at orders 2-8, a small simulation; charts (no data needed)",
+        description="Runs the main job on built-in defaults, no data files: the basis table "
+                    "(sizes, orthonormality errors, evaluation cost), a study of a Phong and a "
+                    "Cook-Torrance model at a few orders (resolution against error), and a "
+                    "small Monte Carlo simulation of a Gaussian surface against Beckmann + "
+                    "Smith. Charts go to --out.",
+        epilog="examples:\n  scatmodes demo\n  scatmodes demo --out /tmp/demo --orders 2,4 "
+               "--study-orders 2,4 --rays 10000")
+    d.add_argument("--out", default="scatmodes-out",
+                   help="output folder, created if missing (default %(default)s)")
     d.add_argument("--orders", default="2,4,8,16,32",
-                   help="comma-separated orders for the table (default %(default)s)")
-    d.add_argument("--points", type=int, default=20_000,
+                   help="comma-separated orders for the basis table (default %(default)s)")
+    d.add_argument("--points", type=_count, default=20_000,
                    help="random directions for timing (default %(default)s)")
+    d.add_argument("--study-orders", default="2,4,8",
+                   help="orders of the model study (default %(default)s)")
+    d.add_argument("--rays", type=_order, default=30_000,
+                   help="rays of the simulation, 0 to skip it (default %(default)s)")
+    d.add_argument("--resolution", type=_count, default=64,
+                   help="height-field grid points per side (default %(default)s)")
+    _add_progress(d)
     d.set_defaults(func=_demo)
-    i = sub.add_parser("info", help="versions, threads and limits")
+
+    pr = sub.add_parser(
+        "project", formatter_class=fmt,
+        help="project an analytic model or a MERL file onto a basis, write HDF5",
+        description="Projects a BRDF onto products of basis functions by adaptive "
+                    "quadrature and writes the coefficient matrix with compress.save. Prints "
+                    "the rule size, the estimated quadrature error, the truncation error "
+                    "(relative L2 norm missed by the order) and the time.",
+        epilog="examples:\n"
+               "  scatmodes project Lambert --param albedo=0.5 --order 2 -o lambert.h5\n"
+               "  scatmodes project Phong --param kd=0.3 --param ks=0.4 --param n=20 "
+               "--basis harmonics --order 8 -o phong.h5\n"
+               "  scatmodes project CookTorrance --param kd=0.2,0.3,0.4 --param roughness=0.3 "
+               "--order 12 -o ct.h5\n"
+               "  scatmodes project --merl gold-metallic-paint.binary --order 8 -o gold.h5\n\n"
+               "models and example parameters (each given as --param KEY=VALUE):\n" + "\n".join(
+                   f"  {k:17s} {v}" for k, v in MODEL_EXAMPLES.items()))
+    _add_source(pr)
+    _add_basis(pr)
+    pr.add_argument("--method", choices=("quadrature", "montecarlo", "lstsq"),
+                    default="quadrature", help="projection method (default %(default)s)")
+    pr.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
+    pr.set_defaults(func=_project)
+
+    c = sub.add_parser(
+        "convert", formatter_class=fmt,
+        help="convert a MERL .binary file to coefficients (= project --merl)",
+        description="MERL conversion: reads a MERL .binary table (trilinear interpolation) "
+                    "and projects it, exactly as 'scatmodes project --merl FILE'.",
+        epilog="example:\n  scatmodes convert blue-acrylic.binary --order 8 -o blue.h5")
+    c.add_argument("file", metavar="FILE.binary", help="MERL file")
+    _add_basis(c)
+    c.add_argument("--tol", type=_positive, default=1e-3,
+                   help="quadrature tolerance (default %(default)s)")
+    c.add_argument("--method", choices=("quadrature", "montecarlo", "lstsq"),
+                   default="quadrature", help="projection method (default %(default)s)")
+    c.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
+    c.set_defaults(func=_convert)
+
+    f = sub.add_parser(
+        "fit", formatter_class=fmt,
+        help="least-squares fit to a table of measurements, write HDF5",
+        description="Fits a reciprocal coefficient matrix to scattered measurements "
+                    "(project.read_table + project.fit). TABLE rows: theta_i phi_i theta_o "
+                    "phi_o (degrees) and one value or R G B (1/sr), separated by spaces or "
+                    "commas; '#' starts a comment. Prints the condition number, the rank and "
+                    "the residual.",
+        epilog="examples:\n  scatmodes fit brick.txt --order 8 -o brick.h5\n"
+               "  scatmodes fit paint.csv --basis harmonics --order 6 --no-isotropic "
+               "--regularization 1e-6 -o paint.h5")
+    f.add_argument("table", metavar="TABLE", help="text file of measurements")
+    _add_basis(f, kinds=("zernike", "harmonics", "harmonics-even"), quantity="f")
+    f.add_argument("--isotropic", action=argparse.BooleanOptionalAction, default=True,
+                   help="fit only the isotropic blocks (default: yes)")
+    f.add_argument("--regularization", type=_nonneg, default=0.0, metavar="LAMBDA",
+                   help="Tikhonov parameter (default %(default)s)")
+    f.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
+    f.set_defaults(func=_fit)
+
+    s = sub.add_parser(
+        "simulate", formatter_class=fmt,
+        help="Monte Carlo microgeometry simulation of a Gaussian surface, write HDF5",
+        description="Traces rays through a periodic Gaussian random height field "
+                    "(project.microgeometry) and estimates the matrix of f cos cos. Prints "
+                    "Westin's asymmetry Q, the speed and the energy balance.",
+        epilog="examples:\n  scatmodes simulate --sigma 1 --tau 6.5 --order 8 --rays 1e6 "
+               "-o westin.h5\n  scatmodes simulate --sigma 1 --tau 3 --material diffuse "
+               "--albedo 0.8 --rays 4e6 --checkpoint run.ckpt -o rough.h5\n"
+               "  scatmodes simulate --sigma 1 --tau 3 --material diffuse --albedo 0.8 "
+               "--rays 8e6 --resume run.ckpt --checkpoint run.ckpt -o rough.h5")
+    s.add_argument("--sigma", type=_positive, required=True, help="RMS height")
+    s.add_argument("--tau", type=_positive, required=True,
+                   help="correlation length (Beckmann m = 2 sigma / tau)")
+    s.add_argument("--resolution", type=_count, default=128,
+                   help="grid points per side (default %(default)s)")
+    s.add_argument("--surface-seed", type=int, default=0,
+                   help="seed of the height field (default %(default)s)")
+    s.add_argument("--material", choices=("mirror", "diffuse"), default="mirror",
+                   help="facet material (default %(default)s, lossless)")
+    s.add_argument("--ior", type=_positive, default=None,
+                   help="mirror facets: refractive index for Fresnel (default: F = 1)")
+    s.add_argument("--albedo", type=_nonneg, default=None,
+                   help="diffuse facets: albedo (default 1)")
+    _add_basis(s, quantity="f_cos")
+    s.add_argument("--rays", type=_count, default=1_000_000,
+                   help="incident rays, in total when resuming (default %(default)s)")
+    s.add_argument("--seed", type=int, default=0, help="seed of the rays (default %(default)s)")
+    s.add_argument("--checkpoint", metavar="PATH", help="save the accumulators here as it runs")
+    s.add_argument("--resume", metavar="PATH", help="continue from this checkpoint")
+    s.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
+    _add_progress(s)
+    s.set_defaults(func=_simulate)
+
+    st = sub.add_parser(
+        "study", formatter_class=fmt,
+        help="error, size and speed against order and basis; markdown table and chart",
+        description="Projects the BRDF at every order of every basis kind and measures the "
+                    "errors against the BRDF itself (compress.study). Prints the table as "
+                    "markdown and writes DIR/study.md and DIR/study.png (error against "
+                    "order, bytes and evaluation time, with the Pareto front).",
+        epilog="examples:\n  scatmodes study Phong --param kd=0.3 --param ks=0.4 --param n=20 "
+               "--orders 2,4,8,12\n  scatmodes study --merl blue-acrylic.binary --kinds "
+               "zernike,harmonics --orders 4,8 --out blue")
+    _add_source(st)
+    st.add_argument("--kinds", default="zernike,harmonics",
+                    help=f"comma-separated basis kinds from {', '.join(KINDS)} "
+                         "(default %(default)s)")
+    st.add_argument("--orders", default="2,4,8",
+                    help="comma-separated orders (default %(default)s)")
+    st.add_argument("--quantity", choices=("f_cos", "f"), default="f_cos",
+                    help="represented quantity (default %(default)s)")
+    st.add_argument("--smooth", choices=("half-gaussian", "lanczos", "hann"), default=None,
+                    help="filter every projection (default: none)")
+    st.add_argument("--metric", default="l2", help="error plotted in the chart (default "
+                    "%(default)s)")
+    st.add_argument("--out", default="scatmodes-out", metavar="DIR",
+                    help="output folder, created if missing (default %(default)s)")
+    st.add_argument("--stability", action="store_true",
+                    help="instead of a BRDF study, write the stability atlas "
+                         "(compress.stability: where each method breaks) to DIR")
+    st.add_argument("--small", action="store_true",
+                    help="with --stability: reduced sizes (about half a minute)")
+    _add_progress(st)
+    st.set_defaults(func=_study)
+
+    i = sub.add_parser("info", formatter_class=fmt, help="versions, threads, limits, models",
+                       description="Versions, threads, basis limits, basis kinds and models.",
+                       epilog="example:\n  scatmodes info")
     i.set_defaults(func=_info)
     return p
 
 
+def _message(exc: BaseException) -> str:
+    if isinstance(exc, OSError) and exc.strerror and exc.filename:
+        text = f"{exc.strerror}: {exc.filename!r}"
+    else:
+        text = str(exc) or type(exc).__name__
+    return " ".join(text.split())  # one line
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``scatmodes`` console script."""
+    """Entry point of the ``scatmodes`` console script; returns the exit status."""
     args = _parser().parse_args(argv)
-    try:
-        return args.func(args)
-    except (UserError, ValueError, TypeError, MemoryError, OSError) as exc:
-        print(f"scatmodes {args.command}: error: {exc}", file=sys.stderr)
-        return 2
+    prog = f"scatmodes {args.command}"
+
+    def show(message, category, filename, lineno, file=None, line=None):  # noqa: ARG001
+        print(f"{prog}: warning: {' '.join(str(message).split())}", file=sys.stderr)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        warnings.showwarning = show
+        try:
+            return args.func(args)
+        except KeyboardInterrupt:
+            print(f"{prog}: interrupted", file=sys.stderr)
+            return 130
+        except USER_ERRORS as exc:
+            print(f"{prog}: error: {_message(exc)}", file=sys.stderr)
+            return 2
 
 
 if __name__ == "__main__":

@@ -1,37 +1,350 @@
-"""The scatmodes command line: demo on embedded defaults, info, one-line errors."""
+"""The scatmodes command line: every command on small inputs, --help everywhere, and one-line
+errors (status 2, no traceback) for each class of user error."""
 
+import re
 import subprocess
 import sys
 
+import numpy as np
+import pytest
+
+from compress import load
 from compress.cli import main
+from project.measured import write_merl
+from project.models import Lambert
+
+PHONG = ["Phong", "--param", "kd=0.3", "--param", "ks=0.4", "--param", "n=20"]
 
 
-def test_demo_writes_table_and_picture(tmp_path, capsys):
-    assert main(["demo", "--out", str(tmp_path), "--orders", "2,4", "--points", "200"]) == 0
-    out = capsys.readouterr().out
+def run(capsys, *argv):
+    """main(argv) -> (status, stdout, stderr); --help and argparse errors exit via SystemExit."""
+    try:
+        status = main(list(argv))
+    except SystemExit as stop:
+        status = stop.code
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def one_line_error(capsys, *argv):
+    """The single stderr line of a failing command (asserts status 2 and no traceback)."""
+    status, _, err = run(capsys, *argv)
+    assert status == 2, err
+    assert "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"scatmodes {argv[0]}: error: "), lines[0]
+    return lines[0]
+
+
+# -- demo and info ---------------------------------------------------------------------------
+def test_demo_writes_tables_and_charts(tmp_path, capsys):
+    status, out, _ = run(capsys, "demo", "--out", str(tmp_path), "--orders", "2,4", "--points",
+                         "200", "--study-orders", "2,4", "--rays", "2000", "--resolution", "16")
+    assert status == 0
     assert "| HemiZernike(4) | 4 | 15 |" in out
     assert "HelmholtzModes(8, isotropic=True) | 8 | 55 |" in out
-    png = tmp_path / "modes.png"
-    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert not list(tmp_path.glob(".modes.png*"))  # no temporary file left behind
+    # resolution-vs-error table: one row per model, kind and order; resolution = 180 / order
+    assert "| phong | zernike | 4 | 45.0 | 14 |" in out
+    assert "| cooktorrance | harmonics | 2 | 90.0 | 2 |" in out
+    assert "asymmetry Q =" in out and "reflected 1.0000" in out  # lossless mirror facets
+    for name in ("modes", "study-phong", "study-cooktorrance", "simulated"):
+        png = tmp_path / f"{name}.png"
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    assert "| kind | order |" in (tmp_path / "study.md").read_text()
+    assert not list(tmp_path.glob(".*"))  # no temporary file left behind
+
+
+def test_demo_without_simulation(tmp_path, capsys):
+    status, out, _ = run(capsys, "demo", "--out", str(tmp_path), "--orders", "2", "--points",
+                         "100", "--study-orders", "2", "--rays", "0")
+    assert status == 0 and "Monte Carlo" not in out
+    assert not (tmp_path / "simulated.png").exists()
 
 
 def test_info(capsys):
-    assert main(["info"]) == 0
-    assert "HemiZernike: order <= 1000" in capsys.readouterr().out
+    status, out, _ = run(capsys, "info")
+    assert status == 0
+    assert "HemiZernike: order <= 1000" in out
+    assert "CookTorrance" in out and "harmonics-even" in out
 
 
-def test_bad_input_is_one_line_without_traceback(tmp_path):
+# -- project and convert ---------------------------------------------------------------------
+def test_project_lambert_is_one_coefficient(tmp_path, capsys):
+    path = tmp_path / "lambert.h5"
+    status, out, err = run(capsys, "project", "lambert", "--param", "albedo=0.5", "--basis",
+                           "harmonics", "--order", "1", "-o", str(path))
+    assert status == 0, err
+    assert out.startswith(f"wrote {path}: Lambert(albedo=0.5) in HemiHarmonics(1")
+    assert "error estimate" in out and "truncation error" in out
+    cm = load(path)
+    k = cm.basis.index(1, 0)
+    # Westin's form: 2a/3 on b_10, exact up to the quadrature's rounding (see project doctest)
+    np.testing.assert_allclose(cm.matrix[k, k], 1 / 3, rtol=0, atol=1e-12)
+
+
+def test_project_per_channel_parameters_and_words(tmp_path, capsys):
+    path = tmp_path / "ct.h5"
+    status, _, err = run(capsys, "project", "CookTorrance", "--param", "kd=0.2,0.3,0.4",
+                         "--param", "roughness=0.5", "--param", "distribution=ggx",
+                         "--order", "4", "-o", str(path))
+    assert status == 0, err
+    cm = load(path)
+    assert cm.channels == 3 and "ggx" in cm.info["source"]
+
+
+def test_project_reports_warnings_in_one_line(tmp_path, capsys):
+    status, _, err = run(capsys, "project", *PHONG, "--order", "2", "-o",
+                         str(tmp_path / "p.h5"))
+    assert status == 0
+    lines = err.strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith("scatmodes project: warning: the expansion of Phong")
+
+
+@pytest.fixture(scope="module")
+def merl_file(tmp_path_factory):
+    """A MERL-format file sampled from Lambert(0.5) (34,992,012 bytes, in a temp dir)."""
+    return write_merl(tmp_path_factory.mktemp("merl") / "white.binary", Lambert(0.5))
+
+
+def test_convert_merl(tmp_path, capsys, merl_file):
+    path = tmp_path / "white.h5"
+    status, out, err = run(capsys, "convert", str(merl_file), "--order", "2", "-o", str(path))
+    assert status == 0, err
+    assert "MERLBRDF(name='white'" in out
+    cm = load(path)
+    # a constant table interpolates to the constant: albedo 0.5 to the quadrature tolerance
+    # 1e-3 (relative to max |M|) of convert's default
+    np.testing.assert_allclose(cm.albedo([0.0, 0.0, 1.0]), 0.5, rtol=0, atol=2e-3)
+
+
+def test_project_merl_same_as_convert(tmp_path, capsys, merl_file):
+    status, out, _ = run(capsys, "project", "--merl", str(merl_file), "--order", "2", "-o",
+                         str(tmp_path / "w.h5"))
+    assert status == 0 and "MERLBRDF(name='white'" in out
+
+
+# -- fit -------------------------------------------------------------------------------------
+def test_fit_recovers_lambert(tmp_path, capsys, rng):
+    table = tmp_path / "lambert.txt"
+    n = 60
+    deg = np.column_stack([rng.uniform(0, 89, n), rng.uniform(0, 360, n),
+                           rng.uniform(0, 89, n), rng.uniform(0, 360, n),
+                           np.full(n, 0.5 / np.pi)])
+    np.savetxt(table, deg, header="theta_i phi_i theta_o phi_o f")
+    path = tmp_path / "fit.h5"
+    status, out, err = run(capsys, "fit", str(table), "--order", "2", "-o", str(path))
+    assert status == 0, err
+    assert "60 samples" in out and "rank 5 of 5 unknowns" in out and "condition number" in out
+    # exact data in the span of the basis: only rounding remains (%.18e text keeps ~1e-16)
+    np.testing.assert_allclose(load(path).albedo([0.0, 0.0, 1.0]), 0.5, rtol=0, atol=1e-12)
+
+
+# -- simulate --------------------------------------------------------------------------------
+def test_simulate_with_checkpoint_and_resume(tmp_path, capsys):
+    common = ["simulate", "--sigma", "1", "--tau", "6.5", "--resolution", "16", "--order",
+              "4", "--seed", "3", "--checkpoint", str(tmp_path / "run.ckpt")]
+    status, out, err = run(capsys, *common, "--rays", "2000", "-o", str(tmp_path / "a.h5"))
+    assert status == 0, err
+    assert "Q = " in out and "rays/s" in out and "reflected 1.0000" in out
+    status, out, err = run(capsys, *common, "--rays", "4000", "--resume",
+                           str(tmp_path / "run.ckpt"), "-o", str(tmp_path / "b.h5"))
+    assert status == 0, err
+    assert "traced 4000 rays" in out
+    assert load(tmp_path / "b.h5").info["rays"] == 4000
+
+
+def test_simulate_diffuse_with_progress_bar(tmp_path, capsys):
+    status, out, err = run(capsys, "simulate", "--sigma", "1", "--tau", "3", "--material",
+                           "diffuse", "--albedo", "0.5", "--resolution", "16", "--order", "2",
+                           "--rays", "2000", "--progress", "-o", str(tmp_path / "d.h5"))
+    assert status == 0, err
+    assert "simulate" in err  # the tqdm bar
+    total = float(re.search(r"\(sum ([0-9.]+)\)", out).group(1))
+    # reflected + absorbed + escaped = 1 up to Russian-roulette noise (observed 0.9999)
+    assert abs(total - 1.0) < 5e-3
+
+
+def test_project_lafortune_lobes(tmp_path, capsys):
+    status, out, err = run(capsys, "project", "Lafortune", "--param", "kd=0.2", "--param",
+                           "lobes=-0.8,-0.8,0.8,20;0.1,0.1,0.2,2", "--order", "6", "-o",
+                           str(tmp_path / "l.h5"))
+    assert status == 0, err
+    assert "Lafortune(" in out
+
+
+# -- study -----------------------------------------------------------------------------------
+def test_study_writes_markdown_and_chart(tmp_path, capsys):
+    status, out, err = run(capsys, "study", *PHONG, "--kinds", "zernike,harmonics",
+                           "--orders", "2,4", "--out", str(tmp_path / "st"))
+    assert status == 0, err
+    assert out.startswith("Study of Phong(kd=0.3, ks=0.4, n=20)")
+    assert "| zernike | 4 | 14 |" in out and "| harmonics | 2 | 2 |" in out
+    assert (tmp_path / "st" / "study.md").read_text().startswith("Study of Phong")
+    assert (tmp_path / "st" / "study.png").read_bytes()[:4] == b"\x89PNG"
+
+
+# -- help ------------------------------------------------------------------------------------
+@pytest.mark.parametrize("cmd", ["demo", "project", "convert", "fit", "simulate", "study",
+                                 "info"])
+def test_help_for_every_command(cmd, capsys):
+    status, out, _ = run(capsys, cmd, "--help")
+    assert status == 0 and out.startswith(f"usage: scatmodes {cmd}")
+    assert "example" in out
+
+
+def test_help_and_errors_through_the_console_module(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "compress.cli", "--help"], capture_output=True,
+                       text=True)
+    assert r.returncode == 0 and "usage: scatmodes" in r.stdout
     r = subprocess.run([sys.executable, "-m", "compress.cli", "demo", "--out", str(tmp_path),
                         "--orders", "-3"], capture_output=True, text=True)
     assert r.returncode == 2
     assert r.stderr.strip() == ("scatmodes demo: error: --orders must be comma-separated "
                                 "integers >= 0, got '-3'")
-    assert "Traceback" not in r.stderr
 
 
-def test_help_for_every_command():
-    for cmd in ([], ["demo"], ["info"]):
-        r = subprocess.run([sys.executable, "-m", "compress.cli", *cmd, "--help"],
-                           capture_output=True, text=True)
-        assert r.returncode == 0 and "usage: scatmodes" in r.stdout
+# -- one-line errors, by class ---------------------------------------------------------------
+def test_bad_model_name(tmp_path, capsys):
+    line = one_line_error(capsys, "project", "Glossy", "-o", str(tmp_path / "x.h5"))
+    assert "MODEL must be one of AshikhminShirley, BlinnPhong," in line and "got 'Glossy'" in line
+
+
+@pytest.mark.parametrize("params, match", [
+    (["albedo"], "--param must be KEY=VALUE, got 'albedo'"),
+    (["colour=1"], "--param 'colour' is not a parameter of Lambert, which takes albedo"),
+    ([], "Lambert needs --param for albedo (e.g. --param albedo=0.5)"),
+    (["albedo=-0.5"], "albedo"),  # the model's own ValueError
+    (["albedo=1,x"], "--param albedo must be a number"),
+])
+def test_bad_parameter(tmp_path, capsys, params, match):
+    argv = ["project", "Lambert"] + [a for p in params for a in ("--param", p)]
+    line = one_line_error(capsys, *argv, "-o", str(tmp_path / "x.h5"))
+    assert match in line
+
+
+def test_model_and_merl_are_exclusive(tmp_path, capsys, merl_file):
+    line = one_line_error(capsys, "project", "Lambert", "--merl", str(merl_file), "-o",
+                          str(tmp_path / "x.h5"))
+    assert "either MODEL or --merl" in line
+    line = one_line_error(capsys, "study", "--out", str(tmp_path))
+    assert "give a MODEL" in line
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["project", "--merl", "{tmp}/none.binary"], "--merl file '{tmp}/none.binary' does not exist"),
+    (["convert", "{tmp}/none.binary"], "--merl file '{tmp}/none.binary' does not exist"),
+    (["fit", "{tmp}/none.txt"], "TABLE file '{tmp}/none.txt' does not exist"),
+    (["fit", "{tmp}"], "TABLE must be a file, got the directory '{tmp}'"),
+    (["simulate", "--sigma", "1", "--tau", "2", "--resume", "{tmp}/none.ckpt"],
+     "--resume file '{tmp}/none.ckpt' does not exist"),
+])
+def test_missing_file(tmp_path, capsys, argv, match):
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    line = one_line_error(capsys, *argv, "-o", str(tmp_path / "x.h5"))
+    assert match.format(tmp=tmp_path) in line
+
+
+def test_damaged_files(tmp_path, capsys):
+    bad = tmp_path / "bad.binary"
+    bad.write_bytes(b"\x00" * 100)
+    line = one_line_error(capsys, "convert", str(bad), "-o", str(tmp_path / "x.h5"))
+    assert "MERL header must hold the dimensions (90, 90, 180)" in line
+    table = tmp_path / "t.txt"
+    table.write_text("10 0 20 0 0.1\n10 0 95 0 0.1\n")
+    line = one_line_error(capsys, "fit", str(table), "-o", str(tmp_path / "x.h5"))
+    assert "line 2: theta_o must lie in [0, 90] degrees, got 95" in line
+
+
+@pytest.mark.parametrize("out, match", [
+    ("{tmp}/missing/x.h5", "cannot write -o '{tmp}/missing/x.h5': directory '{tmp}/missing' "
+                           "does not exist"),
+    ("{tmp}", "-o must name a file, got the directory '{tmp}'"),
+])
+def test_unwritable_output(tmp_path, capsys, out, match):
+    out = out.format(tmp=tmp_path)
+    line = one_line_error(capsys, "project", "Lambert", "--param", "albedo=0.5", "-o", out)
+    assert match.format(tmp=tmp_path) in line
+
+
+def test_unwritable_output_folder(tmp_path, capsys):
+    afile = tmp_path / "a-file"
+    afile.write_text("")
+    line = one_line_error(capsys, "study", "Lambert", "--param", "albedo=0.5", "--out",
+                          str(afile))
+    assert f"--out must be a directory, got the file '{afile}'" in line
+    line = one_line_error(capsys, "demo", "--out", str(afile / "sub"))
+    assert "cannot create --out directory" in line
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--order", "-1"], "argument --order: must be an integer >= 0, got '-1'"),
+    (["--order", "two"], "argument --order: must be an integer >= 0, got 'two'"),
+    (["--basis", "harmonics", "--order", "0"], "order must be >= 1 for kind='harmonics'"),
+    (["--order", "5000"], "order"),  # the basis' own limit
+    (["--basis", "legendre"], "argument --basis: invalid choice: 'legendre'"),
+])
+def test_bad_order_or_basis(tmp_path, capsys, argv, match):
+    line = one_line_error(capsys, "project", "Lambert", "--param", "albedo=0.5", *argv, "-o",
+                          str(tmp_path / "x.h5"))
+    assert match in line
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["study", "Lambert", "--param", "albedo=0.5", "--orders", "2,x"],
+     "--orders must be comma-separated integers >= 0, got '2,x'"),
+    (["study", "Lambert", "--param", "albedo=0.5", "--kinds", "zernike,legendre"],
+     "--kinds must be comma-separated basis kinds"),
+    (["study", "Lambert", "--param", "albedo=0.5", "--metric", "psnr"],
+     "--metric must be one of l2,"),
+    (["simulate", "--sigma", "0", "--tau", "1", "-o", "x.h5"],
+     "argument --sigma: must be a positive number, got '0'"),
+    (["simulate", "--sigma", "1", "--tau", "1", "--rays", "-5", "-o", "x.h5"],
+     "argument --rays: must be a positive integer"),
+    (["simulate", "--sigma", "1", "--tau", "1", "--albedo", "0.5", "-o", "x.h5"],
+     "--albedo applies to --material diffuse"),
+    (["simulate", "--sigma", "1", "--tau", "1"], "the following arguments are required: -o"),
+    (["fit", "t.txt", "--basis", "sh", "-o", "x.h5"], "argument --basis: invalid choice: 'sh'"),
+])
+def test_bad_values(tmp_path, capsys, monkeypatch, argv, match):
+    monkeypatch.chdir(tmp_path)
+    line = one_line_error(capsys, *argv)
+    assert match in line
+
+
+def test_no_command(capsys):
+    status, _, err = run(capsys)
+    assert status == 2
+    assert err.strip().splitlines() == [
+        "scatmodes: error: the following arguments are required: COMMAND (see 'scatmodes "
+        "--help')"]
+
+
+def test_every_model_example_builds():
+    from compress.cli import MODEL_EXAMPLES, model_classes, parse_model
+
+    assert set(MODEL_EXAMPLES) == set(model_classes())
+    for name, example in MODEL_EXAMPLES.items():
+        brdf = parse_model(name, [p.strip("'") for p in example.split()])
+        assert type(brdf).__name__ == name
+
+
+def test_study_stability_writes_the_atlas(tmp_path, capsys, monkeypatch):
+    import compress.stability as stability
+
+    calls = []
+
+    def fake_write_all(out, small=False):  # the atlas itself is tested in test_stability
+        calls.append((out, small))
+        return {"radial_accuracy": (out / "radial_accuracy.md", out / "radial_accuracy.png")}
+
+    monkeypatch.setattr(stability, "write_all", fake_write_all)
+    assert main(["study", "--stability", "--small", "--out", str(tmp_path)]) == 0
+    assert calls == [(tmp_path, True)]
+    assert "radial_accuracy.md and" in capsys.readouterr().out
+
+
+def test_study_stability_refuses_a_model(tmp_path, capsys):
+    assert main(["study", "Lambert", "--stability", "--out", str(tmp_path)]) == 2
+    assert "--stability takes no MODEL" in capsys.readouterr().err
