@@ -41,7 +41,7 @@ from basis._validate import nonneg_int
 
 from ._io import atomic_path
 from .evaluate import evaluate
-from .study import make_basis
+from .study import isotropic_pairs, make_basis
 from .truncate import SMOOTHING, ringing, smooth
 
 __all__ = ["Atlas", "Panel", "hemisphere_conditioning", "monte_carlo", "radial_accuracy",
@@ -437,23 +437,6 @@ def _fmt_digits(facts: dict[str, float], fam: str, meth: str, orders: Sequence[i
 
 
 # -- shared helpers for the fits -----------------------------------------------------------------
-def _iso_pairs(nz: int, nphi: int) -> tuple[NDArray, NDArray, NDArray]:
-    """The isotropic product rule on H x H (Gauss in each cosine x uniform dphi, phi_i = 0):
-    exact for the isotropic design columns of degree <= 2 nz - 1 in each z and < nphi in
-    dphi. Returns wi, wo (n, 3) and weights (n,) summing to (2 pi)^2."""
-    t, w = np.polynomial.legendre.leggauss(nz)
-    z, wz = 0.5 * (t + 1.0), 0.5 * w
-    s = np.sqrt((1.0 - z) * (1.0 + z))
-    dphi = 2.0 * np.pi * np.arange(nphi) / nphi
-    zi, zo, dp = np.meshgrid(z, z, dphi, indexing="ij")
-    si, so = np.meshgrid(s, s, dphi, indexing="ij")[:2]
-    wi = np.stack([si, np.zeros_like(si), zi], axis=-1).reshape(-1, 3)
-    wo = np.stack([so * np.cos(dp), so * np.sin(dp), zo], axis=-1).reshape(-1, 3)
-    wts = (np.multiply.outer(np.multiply.outer(wz, wz), np.full(nphi, 2.0 * np.pi / nphi))
-           * 2.0 * np.pi).reshape(-1)
-    return wi, wo, wts
-
-
 def _uniform_pairs(rng: np.random.Generator, n: int) -> tuple[NDArray, NDArray]:
     out = []
     for _ in range(2):
@@ -545,14 +528,14 @@ def hemisphere_conditioning(orders: Sequence[int] = tuple(range(1, 9)), *,
     rows = []
     for order in orders:
         order = nonneg_int(order, "orders")
-        tw, to, tv = _iso_pairs(max(12, order + 4), max(24, 2 * order + 4))
+        tw, to, tv = isotropic_pairs(max(12, order + 4), max(24, 2 * order + 4))
         qt = _q(brdf, tw, to)
         qnorm = float(np.sqrt(tv @ (qt * qt)))
         for kind in kinds:
             b = make_basis(kind, order)
             rule = basis.hemisphere_rule(order + 1, 2 * order + 1)
             cd = _cond(b.eval(rule.points) * np.sqrt(rule.weights)[:, None])
-            wi, wo, wts = _iso_pairs(order + 1, 2 * order + 2)
+            wi, wo, wts = isotropic_pairs(order + 1, 2 * order + 2)
             a = _iso_design(b, wi, wo)
             cp = _cond(a * np.sqrt(wts)[:, None])
             n = int(np.ceil(oversample * a.shape[1]))

@@ -127,6 +127,30 @@ class Samples:
     description: str = ""
 
 
+def isotropic_pairs(nz: int, nphi: int) -> tuple[NDArray, NDArray, NDArray]:
+    """The isotropic product rule on H x H: Gauss-Legendre in each cosine x uniform
+    dphi = phi_i - phi_o, with phi_i = 0 (an isotropic integrand does not depend on it).
+
+    Returns
+    -------
+    wi, wo : (nz * nz * nphi, 3) ndarray
+    weights : (nz * nz * nphi,) ndarray
+        Summing to (2 pi)^2; exact for isotropic integrands of degree <= 2 nz - 1 in each
+        cosine and < nphi in dphi.
+    """
+    t, w = np.polynomial.legendre.leggauss(nz)
+    z, wz = 0.5 * (t + 1.0), 0.5 * w
+    s = np.sqrt((1.0 - z) * (1.0 + z))
+    dphi = 2.0 * np.pi * np.arange(nphi) / nphi
+    zi, zo, dp = np.meshgrid(z, z, dphi, indexing="ij")
+    si, so = np.meshgrid(s, s, dphi, indexing="ij")[:2]
+    wi = np.stack([si, np.zeros_like(si), zi], axis=-1).reshape(-1, 3)
+    wo = np.stack([so * np.cos(dp), -so * np.sin(dp), zo], axis=-1).reshape(-1, 3)
+    weights = (np.multiply.outer(np.multiply.outer(wz, wz), np.full(nphi, 2.0 * np.pi / nphi))
+               * 2.0 * np.pi).reshape(-1)
+    return wi, wo, weights
+
+
 def reference_samples(brdf: Any, *, nodes: tuple[int, int] = NODES, max_theta: float = MAX_THETA,
              seed: int = 0) -> Samples:
     """The pairs on which a study measures errors (see the module notes).
@@ -146,16 +170,7 @@ def reference_samples(brdf: Any, *, nodes: tuple[int, int] = NODES, max_theta: f
     if not 0 < max_theta <= np.pi / 2:
         raise ValueError(f"max_theta must lie in (0, pi/2], got {max_theta!r}")
     if getattr(brdf, "isotropic", False):
-        t, w = np.polynomial.legendre.leggauss(nz)
-        z, wz = 0.5 * (t + 1.0), 0.5 * w
-        s = np.sqrt((1.0 - z) * (1.0 + z))
-        dphi = 2.0 * np.pi * np.arange(nphi) / nphi
-        zi, zo, dp = np.meshgrid(z, z, dphi, indexing="ij")
-        si, so = np.meshgrid(s, s, dphi, indexing="ij")[:2]
-        wi = np.stack([si, np.zeros_like(si), zi], axis=-1).reshape(-1, 3)
-        wo = np.stack([so * np.cos(dp), -so * np.sin(dp), zo], axis=-1).reshape(-1, 3)
-        weights = (np.multiply.outer(np.multiply.outer(wz, wz), np.full(nphi, 2.0 * np.pi / nphi))
-                   * 2.0 * np.pi).reshape(-1)
+        wi, wo, weights = isotropic_pairs(nz, nphi)
         grid: tuple[int, int, int] | None = (nz, nz, nphi)
         desc = (f"isotropic product rule: {nz} Gauss nodes per cosine x {nphi} azimuth "
                 f"differences ({wi.shape[0]} pairs)")
