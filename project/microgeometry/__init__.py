@@ -5,25 +5,33 @@ Rays are traced through a periodic, triangulated height field whose facets are m
 estimate of the coefficient matrix of f cos(theta_i) cos(theta_o) in any hemisphere basis.
 
 - :class:`GaussianSurface`, :class:`Heightfield`: the specimens.
+- :class:`Scene`, :func:`brushed_metal`, :class:`Mesh`, :class:`BVH`: periodic scenes of
+  meshes, cylinders and height fields traced through one BVH.
 - :class:`Mirror`, :class:`Diffuse`, :class:`MicroBRDF`: facet materials.
 - :func:`trace`: paths for one incident direction (exit directions, weights, bounces).
 - :func:`simulate`: the coefficient matrix with Q, standard errors and energy balance.
 """
 
+from .bvh import BVH, Mesh
 from .estimate import SimulationResult, merge, simulate
 from .materials import Diffuse, Material, MicroBRDF, Mirror
+from .scene import Scene, brushed_metal
 from .surface import GaussianSurface, Heightfield
 from .trace import Paths, trace
 
 __all__ = [
+    "BVH",
     "Diffuse",
     "GaussianSurface",
     "Heightfield",
     "Material",
+    "Mesh",
     "MicroBRDF",
     "Mirror",
     "Paths",
+    "Scene",
     "SimulationResult",
+    "brushed_metal",
     "merge",
     "simulate",
     "trace",

@@ -32,8 +32,9 @@ from basis import Basis, CoefficientMatrix
 from basis._jit import pjit, prange
 
 from .._io import atomic_path
+from .scene import Scene
 from .surface import Heightfield
-from .trace import _alloc, _positive_int, _run, _seed, incident_directions
+from .trace import MAX_BOUNCES, MAX_STEPS, _alloc, _positive_int, _run, _seed, incident_directions
 
 __all__ = ["SimulationResult", "merge", "simulate"]
 
@@ -153,7 +154,7 @@ def merge(*results: SimulationResult) -> SimulationResult:
 
 
 def simulate(
-    surface: Heightfield,
+    surface: Heightfield | Scene,
     basis: Basis,
     *,
     rays: int,
@@ -170,8 +171,9 @@ def simulate(
 
     Parameters
     ----------
-    surface : Heightfield
-        The specimen (e.g. :class:`GaussianSurface`), with its facet material.
+    surface : Heightfield or Scene
+        The specimen (e.g. :class:`GaussianSurface`, :func:`brushed_metal`), with its facet
+        material(s).
     basis : basis.Basis
         Any hemisphere basis (``HemiZernike``, ``HemiHarmonics``) or ``SphericalHarmonics``.
     rays : int
@@ -222,8 +224,8 @@ def simulate(
     >>> round(float(res.matrix.matrix[0, 0]), 1)  # 2 a / 3 = 0.333
     0.3
     """
-    if not isinstance(surface, Heightfield):
-        raise TypeError(f"surface must be a Heightfield (e.g. GaussianSurface), got "
+    if not isinstance(surface, (Heightfield, Scene)):
+        raise TypeError(f"surface must be a Heightfield (e.g. GaussianSurface) or a Scene, got "
                         f"{type(surface).__name__}")
     if not isinstance(basis, Basis):
         raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
@@ -283,12 +285,15 @@ def _empty(k: int) -> dict[str, Any]:
             "bounces": np.zeros(BOUNCE_BINS)}
 
 
-def _chunk(surface: Heightfield, basis: Basis, seed: np.uint64, start: int, nd: int,
+def _chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: int, nd: int,
            per: int, cosine: bool, acc: dict[str, Any]) -> None:
     """Trace directions start .. start + nd - 1 (``per`` rays each) and accumulate."""
     u = incident_directions(nd, seed, start, cosine)
     out = _alloc(nd * per)
-    _run(surface, u, per, seed, start * per, out)
+    if isinstance(surface, Scene):
+        surface._run(u, per, seed, start * per, out, MAX_BOUNCES, MAX_STEPS)
+    else:
+        _run(surface, u, per, seed, start * per, out)
     vdir, w, nb, absorbed, lost = out
     bu = basis.eval(u)  # (nd, K), once per direction (Westin eq 25)
     c = np.full(nd, np.pi) if cosine else 2.0 * np.pi * u[:, 2]

@@ -67,7 +67,7 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
 
     Parameters
     ----------
-    surface : Heightfield
+    surface : Heightfield or Scene
         Specimen (its ``material`` scatters at every facet). :class:`MicroBRDF` facets are
         traced bounce by bounce (``wavefront.py``), the others path by path in numba.
     wi : (3,) array_like of float
@@ -92,14 +92,21 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
     >>> (p.directions[0] + 0.0).round(12).tolist(), p.weights.tolist()
     ([-0.6, 0.0, 0.8], [1.0, 1.0, 1.0])
     """
-    if not isinstance(surface, Heightfield):
-        raise TypeError(f"surface must be a Heightfield, got {type(surface).__name__}")
+    from .scene import Scene  # scene.py builds on this module
+
+    if not isinstance(surface, (Heightfield, Scene)):
+        raise TypeError(f"surface must be a Heightfield or a Scene, got "
+                        f"{type(surface).__name__}")
     w = as_directions(wi, "wi").reshape(-1, 3)
     if w.shape[0] != 1 or not w[0, 2] > 0:
         raise ValueError(f"wi must be one unit vector with z > 0, got {np.asarray(wi)!r}")
     rays = _positive_int(rays, "rays")
     out = _alloc(rays)
-    _run(surface, w / np.linalg.norm(w), rays, _seed(seed), start, out)
+    if isinstance(surface, Scene):
+        surface._run(w / np.linalg.norm(w), rays, _seed(seed), start, out, MAX_BOUNCES,
+                     MAX_STEPS)
+    else:
+        _run(surface, w / np.linalg.norm(w), rays, _seed(seed), start, out)
     return Paths(*out)
 
 
