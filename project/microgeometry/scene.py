@@ -21,9 +21,9 @@ from numpy.typing import ArrayLike, NDArray
 from basis._jit import pjit, prange
 
 from .bvh import _HIT, _LOST, BVH, CYLINDER, TRIANGLE, Mesh, _periodic_hit
-from .materials import MICRO, MIRROR, Material, Mirror
+from .materials import MICRO, Material, Mirror
 from .surface import Heightfield
-from .trace import _TAG_RAY, ROULETTE, _cosine_sample, _fresnel1, _stream, _uniform
+from .trace import _TAG_RAY, ROULETTE, _scatter, _store_path, _stream, _uniform
 
 __all__ = ["Scene", "brushed_metal"]
 
@@ -293,44 +293,15 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
             px = ox + t * dx
             py = oy + t * dy
             pz = oz + t * dz
-            ci = -(dx * gx + dy * gy + dz * gz)
-            if int(mats[prim, 0]) == MIRROR:
-                f = _fresnel1(min(1.0, max(0.0, ci)), mats[prim, 1], mats[prim, 2])
-                dx += 2.0 * ci * gx
-                dy += 2.0 * ci * gy
-                dz += 2.0 * ci * gz
-                inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                dx *= inv
-                dy *= inv
-                dz *= inv
-            else:
-                f = mats[prim, 3]
-                u1, s = _uniform(s)
-                u2, s = _uniform(s)
-                dx, dy, dz = _cosine_sample(gx, gy, gz, u1, u2)
-            absorbed += w * (1.0 - f)
-            w *= f
-            if w < rr:
-                u1, s = _uniform(s)
-                if u1 * rr < w:
-                    w = rr
-                else:
-                    w = 0.0
-                    break
+            m = mats[prim]
+            dx, dy, dz, w, absorbed, s = _scatter(int(m[0]), m[1], m[2], m[3], dx, dy, dz, gx,
+                                                  gy, gz, w, absorbed, rr, s)
+            if w == 0.0:
+                break
             ox = px + eps * gx
             oy = py + eps * gy
             oz = pz + eps * gz
             ox -= np.floor(ox / lx) * lx
             oy -= np.floor(oy / ly) * ly
-        if w > 0.0:
-            out_dir[r, 0] = dx
-            out_dir[r, 1] = dy
-            out_dir[r, 2] = dz
-        else:
-            out_dir[r, 0] = 0.0
-            out_dir[r, 1] = 0.0
-            out_dir[r, 2] = 1.0
-        out_w[r] = w
-        out_b[r] = bounces
-        out_abs[r] = absorbed
-        out_lost[r] = lost
+        _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b,
+                    out_abs, out_lost)

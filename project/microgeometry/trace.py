@@ -356,6 +356,53 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
     return _LOST, t, 0.0, 0.0, 0.0
 
 
+@njit(inline="always")
+def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, w, absorbed, rr, s):
+    """One facet event for a ray travelling along d that hit a facet of normal g: mirror
+    reflection weighted by Fresnel, or a cosine-distributed diffuse bounce weighted by the
+    albedo, then Russian roulette (survive with probability w / rr at weight rr).
+    Returns the new direction, weight (0 when the ray dies), absorbed energy and stream."""
+    ci = -(dx * gx + dy * gy + dz * gz)
+    if code == MIRROR:
+        f = _fresnel1(min(1.0, max(0.0, ci)), ior, kext)
+        dx += 2.0 * ci * gx
+        dy += 2.0 * ci * gy
+        dz += 2.0 * ci * gz
+        inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+        dx *= inv
+        dy *= inv
+        dz *= inv
+    else:
+        f = alb
+        u1, s = _uniform(s)
+        u2, s = _uniform(s)
+        dx, dy, dz = _cosine_sample(gx, gy, gz, u1, u2)
+    absorbed += w * (1.0 - f)
+    w *= f
+    if w < rr:
+        u1, s = _uniform(s)
+        w = rr if u1 * rr < w else 0.0
+    return dx, dy, dz, w, absorbed, s
+
+
+@njit(inline="always")
+def _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b, out_abs,
+                out_lost):
+    """Write ray r's exit (direction, or +z for a dead ray), weight and bookkeeping."""
+    if w > 0.0:
+        out_dir[r, 0] = dx
+        out_dir[r, 1] = dy
+        out_dir[r, 2] = dz
+    else:
+        out_dir[r, 0] = 0.0
+        out_dir[r, 1] = 0.0
+        out_dir[r, 2] = 1.0
+    out_w[r] = w
+    out_b[r] = bounces
+    out_abs[r] = absorbed
+    out_lost[r] = lost
+
+
 @pjit
 def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax, code, params,
                   rr, max_bounces, max_steps, out_dir, out_w, out_b, out_abs, out_lost):
@@ -402,44 +449,14 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
             px = ox + t * dx
             py = oy + t * dy
             pz = oz + t * dz
-            ci = -(dx * gx + dy * gy + dz * gz)
-            if code == MIRROR:
-                f = _fresnel1(min(1.0, max(0.0, ci)), ior, kext)
-                dx += 2.0 * ci * gx
-                dy += 2.0 * ci * gy
-                dz += 2.0 * ci * gz
-                inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-                dx *= inv
-                dy *= inv
-                dz *= inv
-            else:
-                f = alb
-                u1, s = _uniform(s)
-                u2, s = _uniform(s)
-                dx, dy, dz = _cosine_sample(gx, gy, gz, u1, u2)
-            absorbed += w * (1.0 - f)
-            w *= f
-            if w < rr:  # Russian roulette: survive with probability w / rr at weight rr
-                u1, s = _uniform(s)
-                if u1 * rr < w:
-                    w = rr
-                else:
-                    w = 0.0
-                    break
+            dx, dy, dz, w, absorbed, s = _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz,
+                                                  w, absorbed, rr, s)
+            if w == 0.0:
+                break
             ox = px + eps * gx
             oy = py + eps * gy
             oz = pz + eps * gz
             ox -= np.floor(ox / lx) * lx
             oy -= np.floor(oy / ly) * ly
-        if w > 0.0:
-            out_dir[r, 0] = dx
-            out_dir[r, 1] = dy
-            out_dir[r, 2] = dz
-        else:
-            out_dir[r, 0] = 0.0
-            out_dir[r, 1] = 0.0
-            out_dir[r, 2] = 1.0
-        out_w[r] = w
-        out_b[r] = bounces
-        out_abs[r] = absorbed
-        out_lost[r] = lost
+        _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b,
+                    out_abs, out_lost)
