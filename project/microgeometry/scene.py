@@ -23,7 +23,7 @@ from basis._jit import pjit, prange
 from .bvh import _HIT, _LOST, BVH, CYLINDER, TRIANGLE, Mesh, _periodic_hit
 from .materials import MICRO, Material, Mirror
 from .surface import Heightfield
-from .trace import _TAG_RAY, ROULETTE, _scatter, _store_path, _stream, _uniform
+from .trace import _TAG_RAY, ROULETTE, _launch, _scatter, _store_path, _stream
 
 __all__ = ["Scene", "brushed_metal"]
 
@@ -262,19 +262,8 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
     eps = 1e-7 * min(lx, ly)
     zs = zmax + 1e-6 * (zmax - zmin + lx)
     for r in prange(dirs.shape[0] * per):
-        s = _stream(seed, start + np.uint64(r), _TAG_RAY)
-        b = r // per
-        u1, s = _uniform(s)
-        u2, s = _uniform(s)
-        k = zs / dirs[b, 2]
-        ox = u1 * lx + k * dirs[b, 0]
-        oy = u2 * ly + k * dirs[b, 1]
-        ox -= np.floor(ox / lx) * lx
-        oy -= np.floor(oy / ly) * ly
-        oz = zs
-        dx = -dirs[b, 0]
-        dy = -dirs[b, 1]
-        dz = -dirs[b, 2]
+        ox, oy, oz, dx, dy, dz, s = _launch(dirs, r // per, zs, lx, ly,
+                                            _stream(seed, start + np.uint64(r), _TAG_RAY))
         w = 1.0
         absorbed = 0.0
         lost = 0.0

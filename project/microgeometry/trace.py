@@ -357,6 +357,20 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
 
 
 @njit(inline="always")
+def _launch(dirs, b, zs, lx, ly, s):
+    """Start of a ray of incidence dirs[b]: above the highest point z = zs on the line through
+    a uniform point of the mean plane's period (lx x ly), travelling towards the surface."""
+    u1, s = _uniform(s)
+    u2, s = _uniform(s)
+    k = zs / dirs[b, 2]
+    ox = u1 * lx + k * dirs[b, 0]
+    oy = u2 * ly + k * dirs[b, 1]
+    ox -= np.floor(ox / lx) * lx
+    oy -= np.floor(oy / ly) * ly
+    return ox, oy, zs, -dirs[b, 0], -dirs[b, 1], -dirs[b, 2], s
+
+
+@njit(inline="always")
 def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, w, absorbed, rr, s):
     """One facet event for a ray travelling along d that hit a facet of normal g: mirror
     reflection weighted by Fresnel, or a cosine-distributed diffuse bounce weighted by the
@@ -418,20 +432,8 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
     kext = params[1]
     alb = params[2]
     for r in prange(dirs.shape[0] * per):
-        s = _stream(seed, start + np.uint64(r), _TAG_RAY)
-        b = r // per
-        u1, s = _uniform(s)
-        u2, s = _uniform(s)
-        # start above the highest point on the line through a uniform mean-plane point
-        k = zs / dirs[b, 2]
-        ox = u1 * lx + k * dirs[b, 0]
-        oy = u2 * ly + k * dirs[b, 1]
-        ox -= np.floor(ox / lx) * lx
-        oy -= np.floor(oy / ly) * ly
-        oz = zs
-        dx = -dirs[b, 0]
-        dy = -dirs[b, 1]
-        dz = -dirs[b, 2]
+        ox, oy, oz, dx, dy, dz, s = _launch(dirs, r // per, zs, lx, ly,
+                                            _stream(seed, start + np.uint64(r), _TAG_RAY))
         w = 1.0
         absorbed = 0.0
         lost = 0.0
