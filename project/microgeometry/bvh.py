@@ -423,7 +423,9 @@ def _hit_cylinder(p, ox, oy, oz, dx, dy, dz, tmin, tmax):
 
 @njit
 def _normal(ptype, p, px, py, pz, dx, dy, dz):
-    # unit normal of the primitive at the point, turned to face the incoming direction
+    # unit normal of the primitive at the point, turned to face the incoming direction, and
+    # front: True when the ray arrives on the outer side (triangles: the side the winding
+    # (v1 - v0) x (v2 - v0) points to; cylinders: outside the tube)
     if ptype == TRIANGLE:
         e1x = p[3] - p[0]
         e1y = p[4] - p[1]
@@ -443,9 +445,10 @@ def _normal(ptype, p, px, py, pz, dx, dy, dz):
             ny = 0.0
         nz = pz - p[2]
     inv = 1.0 / np.sqrt(nx * nx + ny * ny + nz * nz)
-    if nx * dx + ny * dy + nz * dz > 0.0:
+    front = nx * dx + ny * dy + nz * dz <= 0.0
+    if not front:
         inv = -inv
-    return nx * inv, ny * inv, nz * inv
+    return nx * inv, ny * inv, nz * inv, front
 
 
 @njit
@@ -525,7 +528,7 @@ def _intersect_kernel(o, d, tmax, lo, hi, link, ptype, pdata, t, prim, nrm):
         prim[r] = k
         if k >= 0:
             t[r] = th
-            nx, ny, nz = _normal(ptype[k], pdata[k], o[r, 0] + th * d[r, 0],
+            nx, ny, nz, _ = _normal(ptype[k], pdata[k], o[r, 0] + th * d[r, 0],
                                  o[r, 1] + th * d[r, 1], o[r, 2] + th * d[r, 2], d[r, 0],
                                  d[r, 1], d[r, 2])
             nrm[r, 0] = nx
@@ -543,15 +546,16 @@ def _periodic_hit(ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi,
                   pdata):
     # Walk the period cells along the ray from t = 0 (unwrapped coordinates); in each cell
     # ask the hierarchy (origin moved back into [0, Lx) x [0, Ly)) for the first hit inside
-    # the cell. Returns (status, t, normal x, y, z, stored primitive or -1).
+    # the cell. Returns (status, t, normal x, y, z, stored primitive or -1, front) with the
+    # normal facing the ray and front as in _normal (True when nothing was hit).
     tol = 1e-9 * (zmax - zmin + lx + ly)
     t = 0.0
     for _ in range(max_steps):
         z = oz + t * dz
         if dz >= 0.0 and z > zmax:
-            return _ESCAPED, t, 0.0, 0.0, 0.0, -1
+            return _ESCAPED, t, 0.0, 0.0, 0.0, -1, True
         if dz < 0.0 and z < zmin - tol:
-            return _LOST, t, 0.0, 0.0, 0.0, -1
+            return _LOST, t, 0.0, 0.0, 0.0, -1, True
         px = ox + t * dx
         py = oy + t * dy
         ix = int(np.floor(px / lx))
@@ -587,11 +591,11 @@ def _periodic_hit(ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi,
         k, th = _closest(lox, loy, oz, dx, dy, dz, max(t - tol, tol), t1 + tol, lo, hi, link,
                          ptype, pdata)
         if k >= 0:
-            nx, ny, nz = _normal(ptype[k], pdata[k], lox + th * dx, loy + th * dy, oz + th * dz,
-                                 dx, dy, dz)
-            return _HIT, th, nx, ny, nz, k
+            nx, ny, nz, front = _normal(ptype[k], pdata[k], lox + th * dx, loy + th * dy,
+                                        oz + th * dz, dx, dy, dz)
+            return _HIT, th, nx, ny, nz, k, front
         t = max(t1, t)
-    return _LOST, t, 0.0, 0.0, 0.0, -1
+    return _LOST, t, 0.0, 0.0, 0.0, -1, True
 
 
 @pjit
@@ -599,7 +603,7 @@ def _periodic_kernel(o, d, lx, ly, zmin, zmax, max_steps, lo, hi, link, ptype, p
                      prim, nrm):
     # o, d (n, 3) rays; st, t, prim (n,), nrm (n, 3) out
     for r in prange(o.shape[0]):
-        s, th, nx, ny, nz, k = _periodic_hit(o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1],
+        s, th, nx, ny, nz, k, _ = _periodic_hit(o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1],
                                              d[r, 2], lx, ly, zmin, zmax, max_steps, lo, hi,
                                              link, ptype, pdata)
         st[r] = s

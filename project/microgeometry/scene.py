@@ -269,9 +269,8 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
         lost = 0.0
         bounces = 0
         while True:
-            status, t, gx, gy, gz, prim = _periodic_hit(ox, oy, oz, dx, dy, dz, lx, ly, zmin,
-                                                        zmax, max_steps, lo, hi, link, ptype,
-                                                        pdata)
+            status, t, gx, gy, gz, prim, front = _periodic_hit(
+                ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi, link, ptype, pdata)
             if status == _LOST or (status == _HIT and bounces >= max_bounces):
                 lost = w
                 w = 0.0
@@ -284,7 +283,7 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
             pz = oz + t * dz
             m = mats[prim]
             dx, dy, dz, w, absorbed, s = _scatter(int(m[0]), m[1], m[2], m[3], dx, dy, dz, gx,
-                                                  gy, gz, w, absorbed, rr, s)
+                                                  gy, gz, front, w, absorbed, rr, s)
             if w == 0.0:
                 break
             ox = px + eps * gx

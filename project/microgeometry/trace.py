@@ -371,8 +371,9 @@ def _launch(dirs, b, zs, lx, ly, s):
 
 
 @njit(inline="always")
-def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, w, absorbed, rr, s):
-    """One facet event for a ray travelling along d that hit a facet of normal g: mirror
+def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, front, w, absorbed, rr, s):
+    """One facet event for a ray travelling along d that hit a facet of normal g (facing the
+    ray; ``front`` says whether the ray arrived on the primitive's outer side): mirror
     reflection weighted by Fresnel, or a cosine-distributed diffuse bounce weighted by the
     albedo, then Russian roulette (survive with probability w / rr at weight rr).
     Returns the new direction, weight (0 when the ray dies), absorbed energy and stream."""
@@ -452,7 +453,7 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
             py = oy + t * dy
             pz = oz + t * dz
             dx, dy, dz, w, absorbed, s = _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz,
-                                                  w, absorbed, rr, s)
+                                                  True, w, absorbed, rr, s)
             if w == 0.0:
                 break
             ox = px + eps * gx
