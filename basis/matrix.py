@@ -347,6 +347,54 @@ class CoefficientMatrix:
             self.basis, [b[0] if self._scalar else b for b in blocks], self.quantity,
             info=self.info)
 
+    def rotated(self, angle: float) -> CoefficientMatrix:
+        """The same BRDF turned by ``angle`` about the normal: f'(w_i, w_o) = f(R^-1 w_i,
+        R^-1 w_o), with R the rotation by ``angle`` (radians, counter-clockwise seen from +z).
+
+        Parameters
+        ----------
+        angle : float
+            Rotation angle in radians (any real number).
+
+        Returns
+        -------
+        CoefficientMatrix
+            ``self`` when isotropic (an isotropic BRDF is invariant); otherwise a dense matrix
+            A^T M A in the same basis, quantity and channels.
+
+        Notes
+        -----
+        Exact for any angle: every basis pairs cos(m phi) and sin(m phi) functions with the
+        same radial factor (ordered alike by degree), and at R^-1 w the azimuth is
+        phi - angle, so cos(m (phi - a)) = cos(m a) cos(m phi) + sin(m a) sin(m phi) and
+        sin(m (phi - a)) = cos(m a) sin(m phi) - sin(m a) cos(m phi): b(R^-1 w) = A b(w) with
+        A block diagonal (2 x 2 rotations by m a). Then f' = b(w_i)^T A^T M A b(w_o).
+        A is orthogonal, so the rotation keeps symmetry and the Frobenius norm.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from basis import HemiZernike
+        >>> zb = HemiZernike(2)
+        >>> M = np.zeros((6, 6)); M[0, 0] = 1.0; M[0, 5] = M[5, 0] = 0.3  # cos(2 phi) term
+        >>> cm = CoefficientMatrix(zb, M, quantity="f")
+        >>> r = cm.rotated(np.pi / 2).matrix  # cos(2 (phi - pi/2)) = -cos(2 phi)
+        >>> float(r[0, 5]), float(r[0, 0])
+        (-0.3, 1.0)
+        """
+        try:
+            a = float(angle)
+        except (TypeError, ValueError):
+            raise TypeError(f"angle must be a number (radians), got {angle!r}") from None
+        if not np.isfinite(a):
+            raise ValueError(f"angle must be finite, got {angle!r}")
+        if self._blocks is not None:
+            return self
+        rot = _rotation_action(self.basis, a)
+        m = rot.T @ self._dense @ rot
+        return CoefficientMatrix(self.basis, m[0] if self._scalar else m, self.quantity,
+                                 symmetrize=True, isotropic=False, info=self.info)
+
     def to_modes(self, isotropic: bool | None = None) -> NDArray[np.float64]:
         """Coefficients in the Helmholtz surface scattering modes (HemiZernike basis only).
 
@@ -431,6 +479,20 @@ def _assemble(basis: Basis, blocks: list[NDArray]) -> NDArray:
         if k:
             out[:, s[:, None], s] = blocks[k]
     return out
+
+
+def _rotation_action(basis: Basis, angle: float) -> NDArray[np.float64]:
+    """(size, size) A with b(R^-1 w) = A b(w), R the turn by ``angle`` about z."""
+    cos_idx, sin_idx = _azimuthal_groups(basis)
+    a = np.eye(basis.size)
+    for m in range(1, len(cos_idx)):
+        c, s = cos_idx[m], sin_idx[m]
+        ca, sa = np.cos(m * angle), np.sin(m * angle)
+        a[c, c] = ca
+        a[s, s] = ca
+        a[c, s] = sa
+        a[s, c] = -sa
+    return a
 
 
 def _iso_mode_factor(n: NDArray, m: NDArray, l: NDArray) -> NDArray[np.float64]:

@@ -1,10 +1,12 @@
 """What is done with coefficients: truncation, filtering, low rank, storage precision, order
-selection, error/resolution studies and charts, HDF5 storage, and the ``scatmodes`` command.
+selection, error/resolution studies and charts, HDF5 storage, pictures of a BRDF on a lit
+sphere, and the ``scatmodes`` command.
 
 Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 """
 
 from .evaluate import FastEvaluator, evaluate
+from .render import render_sphere, tonemap
 from .select import Environment, ScenePlan, for_scene, select_order
 from .store import load, save
 from .study import KINDS, METRICS, Study, errors, make_basis, pareto_front, reference_samples, study
@@ -36,12 +38,14 @@ __all__ = [
     "pareto_front",
     "precision",
     "reference_samples",
+    "render_sphere",
     "ringing",
     "save",
     "select_order",
     "smooth",
     "smoothing_factors",
     "study",
+    "tonemap",
     "truncate",
     "unique_coefficients",
 ]

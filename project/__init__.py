@@ -4,6 +4,7 @@
 - :mod:`project.measured`: MERL files.
 - :func:`project.project`: quadrature (or Monte Carlo, or least-squares) projection.
 - :func:`project.fit`: least squares for scattered measurements.
+- :class:`project.MatrixBRDF`: a coefficient matrix evaluated and sampled as a BRDF (recursion).
 
 Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 """
@@ -11,10 +12,12 @@ Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 from . import measured, models
 from .brdf import BRDF, MirrorDelta
 from .lstsq import bin_samples, fit, read_table, tessellate_hemisphere
+from .matrix_brdf import MatrixBRDF
 from .quadrature import project, radial_table, tail_fraction, truncation_error
 
 __all__ = [
     "BRDF",
+    "MatrixBRDF",
     "MirrorDelta",
     "bin_samples",
     "fit",

@@ -7,20 +7,26 @@ estimate of the coefficient matrix of f cos(theta_i) cos(theta_o) in any hemisph
 - :class:`GaussianSurface`, :class:`Heightfield`: the specimens.
 - :class:`Scene`, :func:`brushed_metal`, :class:`Mesh`, :class:`BVH`: periodic scenes of
   meshes, cylinders and height fields traced through one BVH.
-- :class:`Mirror`, :class:`Diffuse`, :class:`MicroBRDF`: facet materials.
+- :class:`Mirror`, :class:`Diffuse`, :class:`MicroBRDF`, :class:`Dielectric`: facet
+  materials (Dielectric: transparent closed solids with absorption inside).
+- :func:`velvet`: transparent fibres with random tilt over an absorbing base.
+- :func:`woven_cloth`: a plain weave of threads scattering with a simulated thread BRDF.
 - :func:`trace`: paths for one incident direction (exit directions, weights, bounces).
 - :func:`simulate`: the coefficient matrix with Q, standard errors and energy balance.
 """
 
 from .bvh import BVH, Mesh
+from .cloth import woven_cloth
 from .estimate import SimulationResult, merge, simulate
-from .materials import Diffuse, Material, MicroBRDF, Mirror
+from .materials import Dielectric, Diffuse, Material, MicroBRDF, Mirror
 from .scene import Scene, brushed_metal
 from .surface import GaussianSurface, Heightfield
 from .trace import Paths, trace
+from .velvet import velvet
 
 __all__ = [
     "BVH",
+    "Dielectric",
     "Diffuse",
     "GaussianSurface",
     "Heightfield",
@@ -35,4 +41,6 @@ __all__ = [
     "merge",
     "simulate",
     "trace",
+    "velvet",
+    "woven_cloth",
 ]

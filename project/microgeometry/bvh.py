@@ -1,19 +1,37 @@
-"""A numba bounding volume hierarchy over triangles and analytic cylinders, periodic in x, y.
+"""A numba bounding volume hierarchy over triangles and analytic primitives, periodic in x, y.
 
-Primitives are stored in two flat arrays: ``ptype`` (P,) int64 (``TRIANGLE`` or
-``CYLINDER``) and ``pdata`` (P, 9) float64:
+Primitives are stored in two flat arrays: ``ptype`` (P,) int64 and ``pdata`` (P, 9) float64:
 
-- triangle: the corners v0, v1, v2 (9 numbers);
-- cylinder: (axis, p, cz, r, lo, hi, 0, 0, 0) -- an open tube of radius r whose axis is
-  parallel to x (axis = 0; the axis is the line y = p, z = cz) or to y (axis = 1; x = p,
-  z = cz), cut to lo <= x <= hi (resp. y). Intersected exactly (a quadratic per ray).
+- ``TRIANGLE`` (0): the corners v0, v1, v2 (9 numbers); outer side: the one the winding
+  normal (v1 - v0) x (v2 - v0) points to;
+- ``CYLINDER`` (1): (axis, p, cz, r, lo, hi, 0, 0, 0) -- an open tube of radius r whose axis
+  is parallel to x (axis = 0; the axis is the line y = p, z = cz) or to y (axis = 1; x = p,
+  z = cz), cut to lo <= x <= hi (resp. y);
+- ``SPHERE`` (2): (cx, cy, cz, r, 0, 0, 0, 0, 0);
+- ``TUBE`` (3): (x0, y0, z0, x1, y1, z1, r, caps, 0) -- a finite cylinder of radius r around
+  the segment p0 -> p1 in any direction; caps = 1 closes it with flat discs at both ends (a
+  closed solid), caps = 0 leaves it open.
 
-The hierarchy is built in numpy by median splits of the primitive centroids along the
-longest axis (leaves of at most ``LEAF`` primitives) and stored as flat node arrays:
-``lo``, ``hi`` (N, 3) boxes and ``link`` (N, 2) int64 -- a leaf holds (first primitive,
-count > 0), an inner node (right child, 0) with its left child at the next index (depth-first
-order). Traversal is iterative with a fixed stack of 64 entries (median splits keep the
-depth at about log2(P / LEAF) + 1).
+Analytic primitives are intersected exactly (a quadratic per ray, solved in the stable form
+q = -(b + sign(b) sqrt(disc)), t = q / a, c / q, with the discriminant written as a r^2 -
+|w x d|^2 so that it does not cancel for distant origins; caps as ray-plane + disc tests).
+Their outer side is the outside of the solid (cylinders and open tubes: away from the axis),
+so a ray starting inside a sphere or a capped tube finds the far wall from behind
+(``front`` False in :func:`_normal`), as refraction inside fibres needs.
+
+The hierarchy is built in numba, top-down, by binned surface-area-heuristic splits
+(``build="sah"``, the default: 16 bins over the centroid extent on each axis, cost
+``_COST_NODE`` per node visit against ``_COST_PRIM`` per primitive test) or by median splits
+of the centroids along their longest extent (``build="median"``). A node becomes a leaf when
+it holds at most ``LEAF`` primitives, or at most ``MAX_LEAF`` and no split beats testing them
+all. Nodes are stored as flat arrays: ``lo``, ``hi`` (N, 3) boxes and ``link`` (N, 2) int64 --
+a leaf holds (first primitive, count > 0), an inner node (right child, 0) with its left child
+at the next index (depth-first order). Traversal is iterative: at an inner node both child
+boxes are tested, the nearer one is visited next and the farther one waits with its entry
+distance on a fixed stack of ``_STACK`` = 64 entries (at most one per level: enough for
+leaves down to depth 63). The build keeps every leaf there: a node switches from SAH to
+median splits (which halve the count) as soon as the depth left would not suffice for them,
+and the depth is checked after the build.
 
 Periodic tiling: for a period box [0, Lx) x [0, Ly) every primitive whose box pokes out of it
 is also inserted shifted by whole periods, so the copies cover every part of the surface
@@ -33,15 +51,27 @@ from basis._jit import njit, pjit, prange
 
 __all__ = ["BVH", "Mesh"]
 
-TRIANGLE, CYLINDER = 0, 1
+TRIANGLE, CYLINDER, SPHERE, TUBE = 0, 1, 2, 3
 
-#: at most this many primitives per leaf
+#: a node with at most this many primitives is always a leaf
 LEAF = 4
+
+#: the SAH build keeps at most this many primitives in a leaf (when no split pays off)
+MAX_LEAF = 16
 
 #: status codes of _periodic_hit (the same values as trace._intersect)
 _HIT, _ESCAPED, _LOST = 0, 1, 2
 
+#: traversal stack entries; a tree with leaves down to depth D needs at most D of them
 _STACK = 64
+
+#: SAH: number of centroid bins per axis, cost of visiting a node (its two child boxes)
+#: relative to one primitive test
+_BINS = 16
+_COST_NODE = 1.0
+_COST_PRIM = 1.0
+
+_BUILDS = ("sah", "median")
 
 
 class Mesh:
@@ -165,20 +195,32 @@ class BVH:
     Parameters
     ----------
     ptype : (P,) array_like of int
-        ``TRIANGLE`` (0) or ``CYLINDER`` (1) per primitive.
+        ``TRIANGLE`` (0), ``CYLINDER`` (1), ``SPHERE`` (2) or ``TUBE`` (3) per primitive.
     pdata : (P, 9) array_like of float
-        Primitive parameters.
+        Primitive parameters (see the module docstring).
     period : (2,) array_like of float, optional
         (Lx, Ly) of a periodic tiling; primitives poking out of [0, Lx) x [0, Ly) are copied.
+    build : {"sah", "median"}
+        Split rule of the hierarchy: binned surface area heuristic or centroid median. Both
+        give the same first hits; SAH traces faster on uneven scenes.
 
     Attributes
     ----------
     source : (P',) ndarray of int64
         For each stored primitive (after copies and reordering), its input index.
+    depth : int
+        Depth of the deepest leaf (root 0); at most ``_STACK - 1``.
+
+    Examples
+    --------
+    >>> bvh = BVH([SPHERE], [[0, 0, 0, 1, 0, 0, 0, 0, 0]])
+    >>> t, prim, normal = bvh.intersect([[0, 0, 5]], [[0, 0, -1]])
+    >>> float(t[0]), int(prim[0]), normal[0].tolist()
+    (4.0, 0, [0.0, 0.0, 1.0])
     """
 
     def __init__(self, ptype: ArrayLike, pdata: ArrayLike, *,
-                 period: ArrayLike | None = None) -> None:
+                 period: ArrayLike | None = None, build: str = "sah") -> None:
         pt = np.ascontiguousarray(ptype, dtype=np.int64).reshape(-1)
         pd = np.ascontiguousarray(pdata, dtype=np.float64).reshape(-1, 9)
         if pt.size == 0:
@@ -186,6 +228,12 @@ class BVH:
         if pd.shape[0] != pt.size:
             raise ValueError(f"pdata must have one row per primitive ({pt.size}), got "
                              f"{pd.shape[0]}")
+        bad = np.flatnonzero((pt < TRIANGLE) | (pt > TUBE))
+        if bad.size:
+            raise ValueError(f"ptype must be TRIANGLE (0), CYLINDER (1), SPHERE (2) or TUBE "
+                             f"(3), got {pt[bad[0]]} at index {bad[0]}")
+        if build not in _BUILDS:
+            raise ValueError(f"build must be one of {_BUILDS}, got {build!r}")
         lo, hi = _prim_bounds(pt, pd)
         src = np.arange(pt.size, dtype=np.int64)
         if period is not None:
@@ -194,11 +242,15 @@ class BVH:
             self.period = per
         else:
             self.period = None
-        order, nlo, nhi, link = _build(lo, hi)
+        order, nlo, nhi, link, depth = _build(lo, hi, build)
+        if depth > _STACK - 1:  # _build guarantees this; traversal could overflow otherwise
+            raise RuntimeError(f"BVH depth {depth} exceeds the {_STACK - 1} levels the "
+                               f"traversal stack of {_STACK} entries allows")
         self.ptype = np.ascontiguousarray(pt[order])
         self.pdata = np.ascontiguousarray(pd[order])
         self.source = src[order]
         self.lo, self.hi, self.link = nlo, nhi, link
+        self.depth = depth
 
     @property
     def bounds(self) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
@@ -267,6 +319,7 @@ class BVH:
 # -- building ---------------------------------------------------------------------------------
 
 def _prim_bounds(pt: NDArray, pd: NDArray) -> tuple[NDArray, NDArray]:
+    # exact axis-aligned boxes (P, 3) of every primitive
     lo = np.empty((pt.size, 3))
     hi = np.empty((pt.size, 3))
     tri = pt == TRIANGLE
@@ -283,10 +336,23 @@ def _prim_bounds(pt: NDArray, pd: NDArray) -> tuple[NDArray, NDArray]:
     y = np.where(ax[:, None] == 0, across, along)
     lo[cyl] = np.stack([x[:, 0], y[:, 0], c[:, 2] - r], axis=1)
     hi[cyl] = np.stack([x[:, 1], y[:, 1], c[:, 2] + r], axis=1)
+    sph = pt == SPHERE
+    s = pd[sph]
+    lo[sph] = s[:, 0:3] - s[:, 3:4]
+    hi[sph] = s[:, 0:3] + s[:, 3:4]
+    tub = pt == TUBE
+    b = pd[tub]
+    a = b[:, 3:6] - b[:, 0:3]
+    a /= np.linalg.norm(a, axis=1)[:, None]
+    # the end discs (radius r, normal a) reach r sqrt(1 - a_k^2) beyond the ends along axis k
+    ext = b[:, 6:7] * np.sqrt(np.maximum(0.0, 1.0 - a * a))
+    lo[tub] = np.minimum(b[:, 0:3], b[:, 3:6]) - ext
+    hi[tub] = np.maximum(b[:, 0:3], b[:, 3:6]) + ext
     return lo, hi
 
 
 def _shift(pt: NDArray, pd: NDArray, sx: float, sy: float) -> NDArray:
+    # the primitives moved by (sx, sy, 0)
     out = pd.copy()
     tri = pt == TRIANGLE
     out[tri, 0::3] += sx
@@ -297,6 +363,14 @@ def _shift(pt: NDArray, pd: NDArray, sx: float, sy: float) -> NDArray:
     out[cyl, 1] += np.where(ax == 0, sy, sx)
     out[cyl, 4] += np.where(ax == 0, sx, sy)
     out[cyl, 5] += np.where(ax == 0, sx, sy)
+    sph = pt == SPHERE
+    out[sph, 0] += sx
+    out[sph, 1] += sy
+    tub = pt == TUBE
+    out[tub, 0] += sx
+    out[tub, 1] += sy
+    out[tub, 3] += sx
+    out[tub, 4] += sy
     return out
 
 
@@ -321,35 +395,203 @@ def _tile(pt, pd, lo, hi, src, per):
     return tuple(np.concatenate([p[i] for p in parts]) for i in range(5))
 
 
-def _build(plo: NDArray, phi: NDArray) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Median-split hierarchy: (primitive order, node lo, node hi, node link)."""
+def _build(plo: NDArray, phi: NDArray, build: str = "sah", max_depth: int = _STACK - 1
+           ) -> tuple[NDArray, NDArray, NDArray, NDArray, int]:
+    """Hierarchy over boxes (P, 3): (primitive order, node lo, node hi, node link, depth).
+
+    Every leaf lies at depth <= ``max_depth`` (given P <= LEAF 2^max_depth)."""
+    n = plo.shape[0]
+    plo = np.ascontiguousarray(plo, dtype=np.float64)
+    phi = np.ascontiguousarray(phi, dtype=np.float64)
+    order = np.arange(n, dtype=np.int64)
+    nlo = np.empty((2 * n - 1, 3))
+    nhi = np.empty((2 * n - 1, 3))
+    link = np.empty((2 * n - 1, 2), np.int64)
+    nodes, depth = _build_kernel(plo, phi, build == "sah", max_depth, _COST_NODE, _COST_PRIM,
+                                 MAX_LEAF, order, nlo, nhi, link)
+    return order, nlo[:nodes].copy(), nhi[:nodes].copy(), link[:nodes].copy(), depth
+
+
+@njit
+def _median_levels(n):
+    # depth a subtree of n primitives needs when every split halves it (larger half ceil)
+    levels = 0
+    while n > LEAF:
+        n = (n + 1) // 2
+        levels += 1
+    return levels
+
+
+@njit
+def _area(lx, ly, lz, hx, hy, hz):
+    # half the surface area of a box (the SAH only uses ratios)
+    ex = hx - lx
+    ey = hy - ly
+    ez = hz - lz
+    return ex * ey + ey * ez + ez * ex
+
+
+@njit
+def _build_kernel(plo, phi, sah, max_depth, cost_node, cost_prim, max_leaf, order, nlo, nhi,
+                  link):
+    # Top-down build with an explicit stack of pending right children. plo, phi (P, 3)
+    # primitive boxes; order (P,) permuted in place; nlo, nhi (2P - 1, 3), link (2P - 1, 2)
+    # filled depth-first. Returns (node count, depth of the deepest leaf).
     n = plo.shape[0]
     cent = 0.5 * (plo + phi)
-    order = np.arange(n, dtype=np.int64)
-    nlo: list[NDArray] = []
-    nhi: list[NDArray] = []
-    link: list[list[int]] = []
-    todo = [(0, n, -1)]  # (start, end, parent whose right link to set); left child first
-    while todo:
-        start, end, parent = todo.pop()
-        idx = len(link)
+    # pending nodes: at most one right sibling per depth plus the node being split
+    st_start = np.empty(max_depth + 2, np.int64)
+    st_end = np.empty(max_depth + 2, np.int64)
+    st_parent = np.empty(max_depth + 2, np.int64)
+    st_depth = np.empty(max_depth + 2, np.int64)
+    st_start[0] = 0
+    st_end[0] = n
+    st_parent[0] = -1
+    st_depth[0] = 0
+    sp = 1
+    nodes = 0
+    deepest = 0
+    bin_n = np.empty((3, _BINS), np.int64)
+    bin_lo = np.empty((3, _BINS, 3))
+    bin_hi = np.empty((3, _BINS, 3))
+    right_area = np.empty(_BINS)
+    right_n = np.empty(_BINS, np.int64)
+    clo = np.empty(3)  # centroid bounds of the node
+    chi = np.empty(3)
+    while sp > 0:
+        sp -= 1
+        start = st_start[sp]
+        end = st_end[sp]
+        parent = st_parent[sp]
+        depth = st_depth[sp]
+        node = nodes
+        nodes += 1
         if parent >= 0:
-            link[parent][0] = idx
-        sub = order[start:end]
-        nlo.append(plo[sub].min(axis=0))
-        nhi.append(phi[sub].max(axis=0))
-        if end - start <= LEAF:
-            link.append([start, end - start])
+            link[parent, 0] = node
+        cnt = end - start
+        for a in range(3):
+            nlo[node, a] = np.inf
+            nhi[node, a] = -np.inf
+            clo[a] = np.inf
+            chi[a] = -np.inf
+        for i in range(start, end):
+            k = order[i]
+            for a in range(3):
+                nlo[node, a] = min(nlo[node, a], plo[k, a])
+                nhi[node, a] = max(nhi[node, a], phi[k, a])
+                clo[a] = min(clo[a], cent[k, a])
+                chi[a] = max(chi[a], cent[k, a])
+        if cnt <= LEAF:
+            link[node, 0] = start
+            link[node, 1] = cnt
+            deepest = max(deepest, depth)
             continue
-        link.append([-1, 0])
-        c = cent[sub]
-        axis = int(np.argmax(c.max(axis=0) - c.min(axis=0)))
-        mid = (end - start) // 2
-        order[start:end] = sub[np.argpartition(c[:, axis], mid)]
-        # the right half waits on the stack; the left half is built next (index idx + 1)
-        todo.append((start + mid, end, idx))
-        todo.append((start, start + mid, -1))
-    return (order, np.array(nlo), np.array(nhi), np.array(link, dtype=np.int64))
+        need = _median_levels(cnt)
+        # SAH only while a median chain below either child would still fit: children have
+        # at most cnt - 1 primitives, so need(child) <= need(cnt)
+        best_axis = -1
+        best_bin = 0
+        best_cost = np.inf
+        if sah and depth + 1 + need <= max_depth:
+            parea = _area(nlo[node, 0], nlo[node, 1], nlo[node, 2], nhi[node, 0],
+                          nhi[node, 1], nhi[node, 2])
+            for a in range(3):
+                ext = chi[a] - clo[a]
+                if not ext > 0.0:
+                    continue
+                for b in range(_BINS):
+                    bin_n[a, b] = 0
+                    for c in range(3):
+                        bin_lo[a, b, c] = np.inf
+                        bin_hi[a, b, c] = -np.inf
+                scale = _BINS / ext
+                for i in range(start, end):
+                    k = order[i]
+                    b = min(int((cent[k, a] - clo[a]) * scale), _BINS - 1)
+                    bin_n[a, b] += 1
+                    for c in range(3):
+                        bin_lo[a, b, c] = min(bin_lo[a, b, c], plo[k, c])
+                        bin_hi[a, b, c] = max(bin_hi[a, b, c], phi[k, c])
+                # sweep from the right: area and count of bins b .. _BINS - 1
+                rx0 = ry0 = rz0 = np.inf
+                rx1 = ry1 = rz1 = -np.inf
+                m = 0
+                for b in range(_BINS - 1, 0, -1):
+                    if bin_n[a, b] > 0:
+                        rx0 = min(rx0, bin_lo[a, b, 0])
+                        ry0 = min(ry0, bin_lo[a, b, 1])
+                        rz0 = min(rz0, bin_lo[a, b, 2])
+                        rx1 = max(rx1, bin_hi[a, b, 0])
+                        ry1 = max(ry1, bin_hi[a, b, 1])
+                        rz1 = max(rz1, bin_hi[a, b, 2])
+                        m += bin_n[a, b]
+                    right_n[b] = m
+                    right_area[b] = _area(rx0, ry0, rz0, rx1, ry1, rz1) if m > 0 else 0.0
+                lx0 = ly0 = lz0 = np.inf
+                lx1 = ly1 = lz1 = -np.inf
+                m = 0
+                for b in range(_BINS - 1):  # split between bins b and b + 1
+                    if bin_n[a, b] > 0:
+                        lx0 = min(lx0, bin_lo[a, b, 0])
+                        ly0 = min(ly0, bin_lo[a, b, 1])
+                        lz0 = min(lz0, bin_lo[a, b, 2])
+                        lx1 = max(lx1, bin_hi[a, b, 0])
+                        ly1 = max(ly1, bin_hi[a, b, 1])
+                        lz1 = max(lz1, bin_hi[a, b, 2])
+                        m += bin_n[a, b]
+                    if m == 0 or right_n[b + 1] == 0:
+                        continue
+                    larea = _area(lx0, ly0, lz0, lx1, ly1, lz1)
+                    cost = cost_node + cost_prim * (larea * m + right_area[b + 1]
+                                                    * right_n[b + 1]) / parea \
+                        if parea > 0.0 else cost_node + cost_prim * max(m, right_n[b + 1])
+                    if cost < best_cost:
+                        best_cost = cost
+                        best_axis = a
+                        best_bin = b
+            if best_axis >= 0 and cnt <= max_leaf and best_cost >= cost_prim * cnt:
+                link[node, 0] = start  # no split pays for the extra node visit
+                link[node, 1] = cnt
+                deepest = max(deepest, depth)
+                continue
+        if best_axis >= 0:
+            # partition: centroids in bins <= best_bin to the left
+            a = best_axis
+            scale = _BINS / (chi[a] - clo[a])
+            i = start
+            j = end - 1
+            while i <= j:
+                if min(int((cent[order[i], a] - clo[a]) * scale), _BINS - 1) <= best_bin:
+                    i += 1
+                else:
+                    order[i], order[j] = order[j], order[i]
+                    j -= 1
+            mid = i
+        else:
+            # median of the centroids along their longest extent (if they all coincide, any
+            # halving will do: the stable sort keeps the input order)
+            a = 0
+            for c in range(1, 3):
+                if chi[c] - clo[c] > chi[a] - clo[a]:
+                    a = c
+            sub = order[start:end].copy()
+            perm = np.argsort(cent[sub, a], kind="mergesort")
+            for i in range(cnt):
+                order[start + i] = sub[perm[i]]
+            mid = start + cnt // 2
+        link[node, 0] = -1
+        link[node, 1] = 0
+        # the right part waits on the stack; the left one is built next (index node + 1)
+        st_start[sp] = mid
+        st_end[sp] = end
+        st_parent[sp] = node
+        st_depth[sp] = depth + 1
+        st_start[sp + 1] = start
+        st_end[sp + 1] = mid
+        st_parent[sp + 1] = -1
+        st_depth[sp + 1] = depth + 1
+        sp += 2
+    return nodes, deepest
 
 
 # -- kernels ----------------------------------------------------------------------------------
@@ -421,12 +663,127 @@ def _hit_cylinder(p, ox, oy, oz, dx, dy, dz, tmin, tmax):
     return np.inf
 
 
+@njit(inline="always")
+def _roots(a, hb, c, disc):
+    # the two roots (t1 <= t2) of a t^2 + 2 hb t + c = 0 given disc = hb^2 - a c >= 0, in
+    # the stable form (no cancellation between -hb and sqrt(disc))
+    sq = np.sqrt(disc)
+    q = -(hb + sq) if hb >= 0.0 else -(hb - sq)
+    if q == 0.0:  # hb = disc = 0: a double root at 0
+        return 0.0, 0.0
+    r1 = q / a
+    r2 = c / q
+    return min(r1, r2), max(r1, r2)
+
+
+@njit
+def _hit_sphere(p, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    # sphere p = (cx, cy, cz, r): nearest root in (tmin, tmax) or inf
+    wx = ox - p[0]
+    wy = oy - p[1]
+    wz = oz - p[2]
+    r = p[3]
+    a = dx * dx + dy * dy + dz * dz
+    # hb^2 - a c = a r^2 - |w x d|^2 (Lagrange): no cancellation for distant origins
+    cx = wy * dz - wz * dy
+    cy = wz * dx - wx * dz
+    cz = wx * dy - wy * dx
+    disc = a * r * r - (cx * cx + cy * cy + cz * cz)
+    if disc < 0.0:
+        return np.inf
+    t1, t2 = _roots(a, wx * dx + wy * dy + wz * dz, wx * wx + wy * wy + wz * wz - r * r, disc)
+    if tmin < t1 < tmax:
+        return t1
+    if tmin < t2 < tmax:
+        return t2
+    return np.inf
+
+
+@njit
+def _hit_tube(p, ox, oy, oz, dx, dy, dz, tmin, tmax):
+    # finite cylinder p = (p0, p1, r, caps): nearest hit in (tmin, tmax) of the side (a root
+    # whose axial coordinate s lies in [0, L]) or, when capped, of the end discs; else inf
+    ux = p[3] - p[0]
+    uy = p[4] - p[1]
+    uz = p[5] - p[2]
+    length = np.sqrt(ux * ux + uy * uy + uz * uz)
+    ux /= length
+    uy /= length
+    uz /= length
+    r = p[6]
+    wx = ox - p[0]
+    wy = oy - p[1]
+    wz = oz - p[2]
+    # the distance from the axis of o + t d is |u x w + t u x d|
+    cwx = uy * wz - uz * wy
+    cwy = uz * wx - ux * wz
+    cwz = ux * wy - uy * wx
+    cdx = uy * dz - uz * dy
+    cdy = uz * dx - ux * dz
+    cdz = ux * dy - uy * dx
+    su = wx * ux + wy * uy + wz * uz
+    du = dx * ux + dy * uy + dz * uz
+    best = tmax
+    a = cdx * cdx + cdy * cdy + cdz * cdz
+    c = cwx * cwx + cwy * cwy + cwz * cwz - r * r
+    if a > 0.0:
+        # hb^2 - a c = a r^2 - ((u x w) . d)^2 (Lagrange, |u| = 1)
+        trip = cwx * dx + cwy * dy + cwz * dz
+        disc = a * r * r - trip * trip
+        if disc < 0.0:  # misses the infinite cylinder, hence also the caps inside it
+            return np.inf
+        t1, t2 = _roots(a, cwx * cdx + cwy * cdy + cwz * cdz, c, disc)
+        if tmin < t1 < best and 0.0 <= su + t1 * du <= length:
+            best = t1
+        elif tmin < t2 < best and 0.0 <= su + t2 * du <= length:
+            best = t2
+    elif c > 0.0:  # parallel to the axis, outside the cylinder
+        return np.inf
+    if p[7] != 0.0 and du != 0.0:
+        for s in (0.0, length):
+            t = (s - su) / du
+            if tmin < t < best:
+                qx = cwx + t * cdx
+                qy = cwy + t * cdy
+                qz = cwz + t * cdz
+                if qx * qx + qy * qy + qz * qz <= r * r:
+                    best = t
+    return best if best < tmax else np.inf
+
+
 @njit
 def _normal(ptype, p, px, py, pz, dx, dy, dz):
     # unit normal of the primitive at the point, turned to face the incoming direction, and
     # front: True when the ray arrives on the outer side (triangles: the side the winding
-    # (v1 - v0) x (v2 - v0) points to; cylinders: outside the tube)
-    if ptype == TRIANGLE:
+    # (v1 - v0) x (v2 - v0) points to; cylinders, spheres, tubes: outside the solid)
+    if ptype == SPHERE:
+        nx = px - p[0]
+        ny = py - p[1]
+        nz = pz - p[2]
+    elif ptype == TUBE:
+        ux = p[3] - p[0]
+        uy = p[4] - p[1]
+        uz = p[5] - p[2]
+        length = np.sqrt(ux * ux + uy * uy + uz * uz)
+        ux /= length
+        uy /= length
+        uz /= length
+        vx = px - p[0]
+        vy = py - p[1]
+        vz = pz - p[2]
+        s = vx * ux + vy * uy + vz * uz
+        nx = vx - s * ux
+        ny = vy - s * uy
+        nz = vz - s * uz
+        # the cap when the point is nearer its plane than the side surface (on the rim
+        # either normal is as good)
+        if p[7] != 0.0 and min(abs(s), abs(length - s)) < abs(
+                np.sqrt(nx * nx + ny * ny + nz * nz) - p[6]):
+            sign = -1.0 if s < 0.5 * length else 1.0
+            nx = sign * ux
+            ny = sign * uy
+            nz = sign * uz
+    elif ptype == TRIANGLE:
         e1x = p[3] - p[0]
         e1y = p[4] - p[1]
         e1z = p[5] - p[2]
@@ -454,69 +811,111 @@ def _normal(ptype, p, px, py, pz, dx, dy, dz):
 @njit
 def _closest(ox, oy, oz, dx, dy, dz, tmin, tmax, lo, hi, link, ptype, pdata):
     # First hit in (tmin, tmax): returns (stored primitive index or -1, t). Iterative
-    # traversal with a fixed stack; the nearer child is visited first.
-    idx = np.ones(3)
-    idx[0] = 1.0 / dx if dx != 0.0 else np.inf
-    idx[1] = 1.0 / dy if dy != 0.0 else np.inf
-    idx[2] = 1.0 / dz if dz != 0.0 else np.inf
+    # traversal: at an inner node both child boxes are tested, the nearer hit child is
+    # visited next and the farther one waits on the stack with its entry distance (skipped
+    # when a closer hit has been found by then). At most one child per level waits, so the
+    # stack holds at most depth <= _STACK - 1 entries.
+    ix = 1.0 / dx if dx != 0.0 else np.inf
+    iy = 1.0 / dy if dy != 0.0 else np.inf
+    iz = 1.0 / dz if dz != 0.0 else np.inf
+    if _box(0, ox, oy, oz, ix, iy, iz, tmin, tmax, lo, hi) == np.inf:
+        return -1, tmax
+    if link[0, 1] > 0:  # a single leaf (small scenes): no stack needed
+        return _leaf(link[0, 0], link[0, 1], -1, ox, oy, oz, dx, dy, dz, tmin, tmax, ptype,
+                     pdata)
     stack = np.empty(_STACK, np.int64)
+    entry = np.empty(_STACK)
     sp = 0
-    stack[sp] = 0
-    sp += 1
     best = -1
-    while sp > 0:
-        sp -= 1
-        node = stack[sp]
-        if not _box(node, ox, oy, oz, idx, tmin, tmax, lo, hi):
-            continue
-        start = link[node, 0]
+    node = 0
+    while True:
         count = link[node, 1]
-        if count > 0:
-            for k in range(start, start + count):
-                if ptype[k] == TRIANGLE:
-                    t = _hit_triangle(pdata[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
-                else:
-                    t = _hit_cylinder(pdata[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
-                if t < tmax:
-                    tmax = t
-                    best = k
-        else:
+        if count == 0:
             left = node + 1
-            right = start
-            # push the farther child first (by the entry distance along the split axis)
-            cl = lo[left, 0] + hi[left, 0] - lo[right, 0] - hi[right, 0]
-            cy = lo[left, 1] + hi[left, 1] - lo[right, 1] - hi[right, 1]
-            cz = lo[left, 2] + hi[left, 2] - lo[right, 2] - hi[right, 2]
-            if cl * dx + cy * dy + cz * dz > 0.0:
-                stack[sp] = left
-                stack[sp + 1] = right
-            else:
-                stack[sp] = right
-                stack[sp + 1] = left
-            sp += 2
+            right = link[node, 0]
+            tl = _box(left, ox, oy, oz, ix, iy, iz, tmin, tmax, lo, hi)
+            tr = _box(right, ox, oy, oz, ix, iy, iz, tmin, tmax, lo, hi)
+            if tl < np.inf and tr < np.inf:
+                if tl <= tr:
+                    node = left
+                    stack[sp] = right
+                    entry[sp] = tr
+                else:
+                    node = right
+                    stack[sp] = left
+                    entry[sp] = tl
+                sp += 1
+                continue
+            if tl < np.inf:
+                node = left
+                continue
+            if tr < np.inf:
+                node = right
+                continue
+        else:
+            best, tmax = _leaf(link[node, 0], count, best, ox, oy, oz, dx, dy, dz, tmin, tmax,
+                               ptype, pdata)
+        # next waiting node that may still hold a closer hit
+        node = -1
+        while sp > 0:
+            sp -= 1
+            if entry[sp] <= tmax:
+                node = stack[sp]
+                break
+        if node < 0:
+            return best, tmax
+
+
+@njit(inline="always")
+def _leaf(start, count, best, ox, oy, oz, dx, dy, dz, tmin, tmax, ptype, pdata):
+    # the primitives start .. start + count - 1 of a leaf: (closest so far or best, its t)
+    for k in range(start, start + count):
+        pk = ptype[k]
+        if pk == TRIANGLE:
+            t = _hit_triangle(pdata[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
+        elif pk == CYLINDER:
+            t = _hit_cylinder(pdata[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
+        elif pk == SPHERE:
+            t = _hit_sphere(pdata[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
+        else:
+            t = _hit_tube(pdata[k], ox, oy, oz, dx, dy, dz, tmin, tmax)
+        if t < tmax:
+            tmax = t
+            best = k
     return best, tmax
 
 
-@njit
-def _box(node, ox, oy, oz, idx, tmin, tmax, lo, hi):
-    # slab test of the ray against node's box on (tmin, tmax)
+@njit(inline="always")
+def _box(node, ox, oy, oz, ix, iy, iz, tmin, tmax, lo, hi):
+    # slab test of the ray against node's box on (tmin, tmax): the entry distance (finite),
+    # or inf when the ray misses the box there (ix, iy, iz: inverse direction, inf for 0)
     t0 = tmin
     t1 = tmax
-    o = (ox, oy, oz)
-    for a in range(3):
-        if idx[a] == np.inf:
-            if o[a] < lo[node, a] or o[a] > hi[node, a]:
-                return False
-            continue
-        ta = (lo[node, a] - o[a]) * idx[a]
-        tb = (hi[node, a] - o[a]) * idx[a]
-        if ta > tb:
-            ta, tb = tb, ta
-        t0 = max(t0, ta)
-        t1 = min(t1, tb * (1.0 + 4e-16))
-        if t0 > t1:
-            return False
-    return True
+    if ix == np.inf:
+        if ox < lo[node, 0] or ox > hi[node, 0]:
+            return np.inf
+    else:
+        ta = (lo[node, 0] - ox) * ix
+        tb = (hi[node, 0] - ox) * ix
+        t0 = max(t0, min(ta, tb))
+        t1 = min(t1, max(ta, tb) * (1.0 + 4e-16))
+    if iy == np.inf:
+        if oy < lo[node, 1] or oy > hi[node, 1]:
+            return np.inf
+    else:
+        ta = (lo[node, 1] - oy) * iy
+        tb = (hi[node, 1] - oy) * iy
+        t0 = max(t0, min(ta, tb))
+        t1 = min(t1, max(ta, tb) * (1.0 + 4e-16))
+    if iz == np.inf:
+        if oz < lo[node, 2] or oz > hi[node, 2]:
+            return np.inf
+    else:
+        ta = (lo[node, 2] - oz) * iz
+        tb = (hi[node, 2] - oz) * iz
+        t0 = max(t0, min(ta, tb))
+        t1 = min(t1, max(ta, tb) * (1.0 + 4e-16))
+    return t0 if t0 <= t1 else np.inf
 
 
 @pjit

@@ -13,10 +13,13 @@ Sampling the smooth part: the one-sample mixture (balance-heuristic) density
 with a lobe sampler for the models that have a closed-form one (CookTorrance: the
 half-vector density D(h) cos(theta_h) of Beckmann or GGX, pdf_o = D h_z / (4 |w_o . h|);
 Phong: (n + 1)/(2 pi) cos^n(alpha) about the mirror direction; BlinnPhong: the same in the
-half vector, divided by 4 |w_o . h|) and p = 0 (pure cosine sampling, factor pi f) for every
-other BRDF. Because the cosine density is part of every mixture, pdf > 0 wherever
-f cos(theta_o) > 0, so the estimator is unbiased for any non-negative BRDF; the mixture
-fraction p only changes the variance.
+half vector, divided by 4 |w_o . h|), the BRDF's own sampler when it has ``sample(wi, u)``
+and ``pdf(wi, wo)`` methods (e.g. :class:`project.MatrixBRDF`: two uniforms per sample, a
+density that integrates to 1 over the upper hemisphere and is exactly the density of
+``sample``), and p = 0 (pure cosine sampling, factor pi f) for every other BRDF. Because
+the cosine density is part of every mixture, pdf > 0 wherever f cos(theta_o) > 0, so the
+estimator is unbiased for any non-negative BRDF; the mixture fraction p only changes the
+variance.
 
 Ideal mirror terms (``brdf.delta``): at each event the mirror is chosen with probability
 P = R / (R + A), clipped to [0.05, 0.95], where R is the summed delta reflectance at the local
@@ -55,7 +58,8 @@ class FacetSampler:
     ----------
     lobe : str or None
         Name of the lobe sampler used in the mixture ("beckmann", "ggx", "phong",
-        "blinn-phong"), None for pure cosine sampling.
+        "blinn-phong", or "brdf" for the BRDF's own ``sample`` and ``pdf``), None for pure
+        cosine sampling.
     lobe_fraction : float
         Mixture probability p of the lobe sampler (0 without one).
     uniforms : int
@@ -154,6 +158,8 @@ class FacetSampler:
 
     def _lobe_sample(self, wi: NDArray, u1: NDArray, u2: NDArray) -> NDArray:
         kind, q = self.lobe, self._lobe_params
+        if kind == "brdf":
+            return np.asarray(self.brdf.sample(wi, np.stack([u1, u2], axis=-1)), np.float64)
         if kind in ("beckmann", "ggx", "blinn-phong"):
             if kind == "beckmann":
                 t2 = -q * q * np.log1p(-u1)  # tan^2 theta_h, exponential with mean m^2
@@ -173,6 +179,8 @@ class FacetSampler:
 
     def _lobe_pdf(self, wi: NDArray, wo: NDArray) -> NDArray:
         kind, q = self.lobe, self._lobe_params
+        if kind == "brdf":
+            return np.asarray(self.brdf.pdf(wi, wo), dtype=np.float64).reshape(wi.shape[0])
         if kind == "phong":
             ca = np.sum(wo * (wi * np.array([-1.0, -1.0, 1.0])), axis=1)
             return np.where(ca > 0, (q + 1.0) / (2.0 * np.pi) * np.maximum(ca, 0.0) ** q, 0.0)
@@ -201,6 +209,10 @@ def _lobe_of(brdf: object) -> tuple[str | None, float, float]:
     """(sampler name, its parameter, Lambertian kd) for the models with a lobe sampler."""
     from project.models import BlinnPhong, CookTorrance, Phong
 
+    if callable(getattr(brdf, "sample", None)) and callable(getattr(brdf, "pdf", None)):
+        # its own sampler follows the whole of f cos (kd = 0): the mixture fraction is the
+        # top of the range, the cosine part stays as the defensive density
+        return "brdf", 0.0, 0.0
     if isinstance(brdf, CookTorrance):
         return brdf.distribution, float(brdf._raw["roughness"][0]), float(brdf._raw["kd"][0])
     if isinstance(brdf, (Phong, BlinnPhong)):

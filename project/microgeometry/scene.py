@@ -3,10 +3,12 @@
 A :class:`Scene` is one period box [0, Lx) x [0, Ly) of a surface tiled in x and y, built
 from parts -- triangle meshes (:class:`~project.microgeometry.bvh.Mesh`), height fields
 (triangulated as by the height-field tracer), base planes and cylinders lying along x or y --
-each with its own facet material (:class:`Mirror` or :class:`Diffuse`). It is accepted by
-:func:`~project.microgeometry.simulate` in place of a :class:`Heightfield`; the path loop is
-the one of ``trace.py`` (same random streams, same start points, same Fresnel and roulette)
-with the max-pyramid walk replaced by the periodic BVH walk of ``bvh.py``.
+each with its own facet material (:class:`Mirror`, :class:`Diffuse`, :class:`Dielectric` or
+:class:`MicroBRDF`). It is accepted by :func:`~project.microgeometry.simulate` in place of a
+:class:`Heightfield`; the path loop is the one of ``trace.py`` (same random streams, same
+start points, same Fresnel and roulette) with the max-pyramid walk replaced by the periodic
+BVH walk of ``bvh.py``. Scenes with MicroBRDF parts are traced bounce by bounce through the
+same BVH (``wavefront.py``; Mirror and Diffuse parts may be mixed in, Dielectric ones not).
 
 :func:`brushed_metal` builds the brushed-metal specimen: parallel cylinders on a base plane.
 """
@@ -20,12 +22,25 @@ from numpy.typing import ArrayLike, NDArray
 
 from basis._jit import pjit, prange
 
-from .bvh import _HIT, _LOST, BVH, CYLINDER, TRIANGLE, Mesh, _periodic_hit
-from .materials import MICRO, Material, Mirror
+from .bvh import _HIT, _LOST, BVH, CYLINDER, SPHERE, TRIANGLE, TUBE, Mesh, _periodic_hit
+from .materials import DIELECTRIC, MICRO, Material, Mirror
 from .surface import Heightfield
-from .trace import _TAG_RAY, ROULETTE, _launch, _scatter, _store_path, _stream
+from .trace import (
+    _TAG_RAY,
+    ROULETTE,
+    _attenuate,
+    _dielectric,
+    _launch,
+    _scatter,
+    _store_path,
+    _stream,
+)
+from .wavefront import run_scene_wavefront
 
 __all__ = ["Scene", "brushed_metal"]
+
+#: primitive type (bvh.py) of each kind of part
+_PTYPE = {"triangles": TRIANGLE, "cylinder": CYLINDER, "sphere": SPHERE, "tube": TUBE}
 
 
 class Scene:
@@ -101,15 +116,98 @@ class Scene:
         row = np.array([[a, vals[0], vals[1], vals[2], 0.0, along, 0.0, 0.0, 0.0]])
         return self._add("cylinder", row, material)
 
+    def add_sphere(self, center: ArrayLike, radius: ArrayLike, *,
+                   material: Material | None = None) -> Scene:
+        """Add one sphere, or n spheres of one material; returns self.
+
+        Parameters
+        ----------
+        center : (3,) or (n, 3) array_like of float
+            Centres (finite; anywhere: the tiling wraps spheres poking out of the period).
+        radius : float or (n,) array_like of float
+            Radii, finite and > 0.
+        material : Material, optional
+            Of the sphere surfaces (default lossless :class:`Mirror`). The outer side (the
+            ``front`` of a hit) is the outside; a ray inside meets the wall from behind.
+
+        Examples
+        --------
+        >>> Scene(1.0).add_plane(0.0).add_sphere([[0.5, 0.5, 0.2], [0.0, 0.0, 0.1]], 0.2)
+        Scene(period=[1.0, 1.0], triangles=2, cylinders=0, spheres=2)
+        """
+        c = _points(center, "center")
+        r = _radii(radius, c.shape[0])
+        rows = np.zeros((c.shape[0], 9))
+        rows[:, 0:3] = c
+        rows[:, 3] = r
+        return self._add("sphere", rows, material)
+
+    def add_tube(self, start: ArrayLike, end: ArrayLike, radius: ArrayLike, *,
+                 caps: bool = True, material: Material | None = None) -> Scene:
+        """Add one finite cylinder (fibre) around the segment start -> end, or n of them.
+
+        Parameters
+        ----------
+        start, end : (3,) or (n, 3) array_like of float
+            End points of the axes (finite, distinct); in any direction, anywhere (the
+            tiling wraps tubes poking out of the period).
+        radius : float or (n,) array_like of float
+            Radii, finite and > 0.
+        caps : bool
+            True (default): closed by flat discs at both ends, a solid whose inside is well
+            defined (transparent fibres); False: an open tube.
+        material : Material, optional
+            Of the tube surfaces (default lossless :class:`Mirror`). The outer side (the
+            ``front`` of a hit) is away from the axis on the side wall and away from the
+            tube on the caps.
+
+        Examples
+        --------
+        A fibre standing on a plane, tilted by 10 degrees:
+
+        >>> top = [0.5 + 0.4 * np.sin(0.1745), 0.5, 0.4 * np.cos(0.1745)]
+        >>> s = Scene(1.0).add_plane(0.0).add_tube([0.5, 0.5, 0.0], top, 0.01)
+        >>> s.tubes, s
+        (1, Scene(period=[1.0, 1.0], triangles=2, cylinders=0, tubes=1))
+        """
+        p0 = _points(start, "start")
+        p1 = _points(end, "end")
+        if p0.shape != p1.shape:
+            if p0.shape[0] == 1 or p1.shape[0] == 1:
+                p0, p1 = np.broadcast_arrays(p0, p1)
+            else:
+                raise ValueError(f"start and end must hold the same number of points, got "
+                                 f"{p0.shape[0]} and {p1.shape[0]}")
+        length = np.linalg.norm(p1 - p0, axis=1)
+        scale = np.maximum(np.abs(p0).max(axis=1), np.abs(p1).max(axis=1))
+        short = np.flatnonzero(~(length > 1e-12 * scale))
+        if short.size:
+            k = short[0]
+            raise ValueError(f"start and end must be distinct points: {short.size} of "
+                             f"{length.size} tubes have (near) zero length (first: tube {k}, "
+                             f"start {p0[k].tolist()}, end {p1[k].tolist()})")
+        if not isinstance(caps, (bool, np.bool_)):
+            raise TypeError(f"caps must be True or False, got {caps!r}")
+        rows = np.zeros((p0.shape[0], 9))
+        rows[:, 0:3] = p0
+        rows[:, 3:6] = p1
+        rows[:, 6] = _radii(radius, p0.shape[0])
+        rows[:, 7] = 1.0 if caps else 0.0
+        return self._add("tube", rows, material)
+
     def _add(self, kind: str, rows: NDArray, material: Material | None) -> Scene:
         if material is None:
             material = Mirror()
         if not isinstance(material, Material):
-            raise TypeError(f"material must be a Material (Mirror, Diffuse), got "
-                            f"{type(material).__name__}")
-        if material.code == MICRO:
-            raise NotImplementedError("material must be Mirror or Diffuse in a Scene; "
-                                      "MicroBRDF facets are supported on Heightfield only")
+            raise TypeError(f"material must be a Material (Mirror, Diffuse, MicroBRDF, "
+                            f"Dielectric), got {type(material).__name__}")
+        codes = {m.code for _, _, m in self._parts} | {material.code}
+        if MICRO in codes and DIELECTRIC in codes:
+            # the bounce-by-bounce tracer of MicroBRDF facets keeps no inside-absorption state
+            raise NotImplementedError("a Scene must not mix MicroBRDF and Dielectric parts "
+                                      "(MicroBRDF scenes are traced bounce by bounce, which "
+                                      "supports Mirror, Diffuse and MicroBRDF parts); use "
+                                      "Mirror or Diffuse parts next to Dielectric ones")
         self._parts.append((kind, np.array(rows, dtype=np.float64), material))
         self._bvh = None
         return self
@@ -125,6 +223,11 @@ class Scene:
             if kind == "triangles":
                 r[:, 0::3] = ly - rows[:, 1::3]
                 r[:, 1::3] = rows[:, 0::3]
+            elif kind in ("sphere", "tube"):
+                # the centre (sphere) or both end points (tube): columns (0, 1) and (3, 4)
+                for c in ((0,) if kind == "sphere" else (0, 3)):
+                    r[:, c] = ly - rows[:, c + 1]
+                    r[:, c + 1] = rows[:, c]
             else:
                 a = rows[:, 0]
                 r[:, 0] = 1 - a
@@ -146,6 +249,16 @@ class Scene:
         return sum(r.shape[0] for k, r, _ in self._parts if k == "cylinder")
 
     @property
+    def spheres(self) -> int:
+        """Spheres per period."""
+        return sum(r.shape[0] for k, r, _ in self._parts if k == "sphere")
+
+    @property
+    def tubes(self) -> int:
+        """Finite cylinders (:meth:`add_tube`) per period."""
+        return sum(r.shape[0] for k, r, _ in self._parts if k == "tube")
+
+    @property
     def bvh(self) -> BVH:
         """The periodic hierarchy (built on first use)."""
         if self._bvh is None:
@@ -159,7 +272,7 @@ class Scene:
     def _packed(self) -> tuple[NDArray, NDArray, NDArray]:
         pt, pd, mats = [], [], []
         for kind, rows, mat in self._parts:
-            pt.append(np.full(rows.shape[0], TRIANGLE if kind == "triangles" else CYLINDER))
+            pt.append(np.full(rows.shape[0], _PTYPE[kind], np.int64))
             pd.append(rows)
             p = mat._params()
             mats.append(np.tile([float(mat.code), *p], (rows.shape[0], 1)))
@@ -176,14 +289,30 @@ class Scene:
         return d.hexdigest()
 
     def __repr__(self) -> str:
+        # spheres and tubes are listed only when present (the form of older scenes stays)
+        extra = "".join(f", {name}={count}" for name, count in
+                        (("spheres", self.spheres), ("tubes", self.tubes)) if count)
         return (f"Scene(period={self.period.tolist()}, triangles={self.triangles}, "
-                f"cylinders={self.cylinders})")
+                f"cylinders={self.cylinders}{extra})")
 
     # -- tracing (called by estimate._chunk through trace-compatible arguments) ---------------
 
     def _run(self, dirs: NDArray, per: int, seed: np.uint64, start: int, out: tuple,
              max_bounces: int, max_steps: int) -> None:
         bvh = self.bvh
+        if any(m.code == MICRO for _, _, m in self._parts):
+            # MicroBRDF facets are numpy objects: bounce by bounce (wavefront.py), with one
+            # slot per distinct material object
+            materials: list[Material] = []
+            slot = []
+            for _, rows, mat in self._parts:
+                j = next((i for i, m in enumerate(materials) if m is mat), len(materials))
+                if j == len(materials):
+                    materials.append(mat)
+                slot.append(np.full(rows.shape[0], j, np.int64))
+            run_scene_wavefront(bvh, self.period, materials, np.concatenate(slot)[bvh.source],
+                                dirs, per, seed, start, out, max_bounces, max_steps)
+            return
         _, _, mats = self._packed()
         mats = np.ascontiguousarray(mats[bvh.source])  # per stored primitive
         lx, ly = self.period
@@ -193,7 +322,8 @@ class Scene:
 
 
 def brushed_metal(radius: float, spacing: float, *, height: float = 0.0,
-                  material: Material | None = None, direction: str = "x") -> Scene:
+                  material: Material | None = None, direction: str = "x",
+                  roughness: float | None = None) -> Scene:
     """Brushed metal: parallel cylinders of ``radius`` every ``spacing`` on a base plane.
 
     Parameters
@@ -209,17 +339,36 @@ def brushed_metal(radius: float, spacing: float, *, height: float = 0.0,
         ridges). Must be > -radius, else the cylinders would be buried.
     material : Material, optional
         Of the cylinders and the plane (default lossless :class:`Mirror`); aluminium near
-        550 nm is ``Mirror(0.96, 6.69)``.
+        550 nm is ``Mirror(0.96, 6.69)``. Any other microscale BRDF: pass
+        ``MicroBRDF(brdf)``.
     direction : {"x", "y"}
         Direction of the cylinder axes (the brushing direction).
+    roughness : float, optional
+        None (default): smooth facets of ``material``. A number m > 0: slightly rough
+        metal -- the facets of the cylinders and the plane become
+        ``MicroBRDF(CookTorrance(0, m, ior=n, k=k))``, a Beckmann microfacet BRDF of RMS
+        slope m (separable Smith shadowing) with the conductor Fresnel of the
+        ``Mirror(n, k)`` given as ``material`` (F = 1 for the default lossless Mirror).
+        Traced bounce by bounce (:mod:`project.microgeometry.wavefront`), several times
+        slower than smooth facets.
 
     Returns
     -------
     Scene
 
+    Raises
+    ------
+    TypeError
+        If ``roughness`` is given with a ``material`` that is not a :class:`Mirror`.
+
     Examples
     --------
     >>> brushed_metal(0.5, 1.0)
+    Scene(period=[1.0, 1.0], triangles=2, cylinders=1)
+
+    Slightly rough aluminium (n + i k = 0.96 + 6.69 i near 550 nm):
+
+    >>> brushed_metal(0.4, 1.0, material=Mirror(0.96, 6.69), roughness=0.15)
     Scene(period=[1.0, 1.0], triangles=2, cylinders=1)
     """
     r = float(radius)
@@ -233,8 +382,66 @@ def brushed_metal(radius: float, spacing: float, *, height: float = 0.0,
         raise ValueError(f"height must be finite and > -radius = {-r:g}, got {height!r}")
     if direction not in ("x", "y"):
         raise ValueError(f"direction must be 'x' or 'y', got {direction!r}")
+    if roughness is not None:
+        material = _rough_metal(material, roughness)
     scene = Scene((s, s)).add_plane(0.0, material=material)
     return scene.add_cylinder(direction, 0.5 * s, h, r, material=material)
+
+
+def _rough_metal(material: Material | None, roughness: object) -> Material:
+    """MicroBRDF(CookTorrance(0, roughness)) with the Fresnel of the Mirror ``material``."""
+    from project.models import CookTorrance
+
+    from .materials import MicroBRDF
+
+    ok = isinstance(roughness, (int, float, np.number)) and not isinstance(roughness, bool)
+    m = float(roughness) if ok else np.nan
+    if not (np.isfinite(m) and m > 0):
+        raise ValueError(f"roughness must be a finite number > 0 (or None), got {roughness!r}")
+    mirror = Mirror() if material is None else material
+    if not isinstance(mirror, Mirror):
+        raise TypeError(f"material must be a Mirror (its n + i k gives the Fresnel term) when "
+                        f"roughness is given, got {material!r}; pass material=MicroBRDF(...) "
+                        f"and roughness=None for other microscale BRDFs")
+    if mirror.ior is None:
+        return MicroBRDF(CookTorrance(0.0, m))
+    return MicroBRDF(CookTorrance(0.0, m, ior=mirror.ior, k=mirror.k))
+
+
+def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:
+    # (n, 3) finite points from a point (3,) or points (n, 3), n >= 1
+    try:
+        p = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a point (3,) or points (n, 3) of floats, got "
+                        f"{value!r}") from None
+    if p.ndim == 1:
+        p = p[None]
+    if p.ndim != 2 or p.shape[1] != 3 or p.shape[0] == 0:
+        raise ValueError(f"{name} must be a point (3,) or points (n, 3) with n >= 1, got "
+                         f"shape {np.shape(value)}")
+    bad = np.flatnonzero(~np.all(np.isfinite(p), axis=1))
+    if bad.size:
+        raise ValueError(f"{name} must be finite: {bad.size} of {p.shape[0]} points are NaN "
+                         f"or inf (first: {p[bad[0]].tolist()})")
+    return p
+
+
+def _radii(value: ArrayLike, n: int) -> NDArray[np.float64]:
+    # (n,) finite radii > 0 from a number or n numbers
+    try:
+        r = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"radius must be a number or {n} numbers, got {value!r}") from None
+    if r.ndim > 1 or (r.ndim == 1 and r.size not in (1, n)):
+        raise ValueError(f"radius must be a number or {n} numbers (one per primitive), got "
+                         f"shape {r.shape}")
+    r = np.broadcast_to(r.reshape(-1), (n,))
+    bad = np.flatnonzero(~(np.isfinite(r) & (r > 0)))
+    if bad.size:
+        raise ValueError(f"radius must be finite and > 0, got {float(r[bad[0]])!r} (primitive "
+                         f"{bad[0]})")
+    return r.copy()
 
 
 def _heightfield_triangles(surface: Heightfield) -> NDArray[np.float64]:
@@ -258,7 +465,8 @@ def _heightfield_triangles(surface: Heightfield) -> NDArray[np.float64]:
 def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptype, pdata, mats,
                   rr, max_bounces, max_steps, out_dir, out_w, out_b, out_abs, out_lost):
     # As trace._trace_kernel with the periodic BVH walk; mats (P, 4) per stored primitive:
-    # (material code, ior, k, albedo). dirs (B, 3); outputs (B * per, 3), (B * per,) x 4.
+    # (material code, ior, k, albedo), k = absorption coefficient for DIELECTRIC.
+    # dirs (B, 3); outputs (B * per, 3), (B * per,) x 4.
     eps = 1e-7 * min(lx, ly)
     zs = zmax + 1e-6 * (zmax - zmin + lx)
     for r in prange(dirs.shape[0] * per):
@@ -268,6 +476,10 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
         absorbed = 0.0
         lost = 0.0
         bounces = 0
+        # absorption coefficient of the medium the ray travels in: set on refracting into a
+        # dielectric's outer side, 0 on refracting out of an inner side; reflections and
+        # opaque facets send the ray back to where it came from and keep it (Dielectric)
+        sigma = 0.0
         while True:
             status, t, gx, gy, gz, prim, front = _periodic_hit(
                 ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi, link, ptype, pdata)
@@ -275,6 +487,7 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
                 lost = w
                 w = 0.0
                 break
+            w, absorbed = _attenuate(sigma, t, w, absorbed)
             if status != _HIT:
                 break
             bounces += 1
@@ -282,13 +495,21 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
             py = oy + t * dy
             pz = oz + t * dz
             m = mats[prim]
-            dx, dy, dz, w, absorbed, s = _scatter(int(m[0]), m[1], m[2], m[3], dx, dy, dz, gx,
-                                                  gy, gz, front, w, absorbed, rr, s)
+            side = eps  # the new origin goes to the side the ray leaves on
+            if int(m[0]) == DIELECTRIC:
+                dx, dy, dz, w, s, through = _dielectric(m[1], dx, dy, dz, gx, gy, gz, front, w,
+                                                        rr, s)
+                if through:
+                    side = -eps
+                    sigma = m[2] if front else 0.0
+            else:
+                dx, dy, dz, w, absorbed, s = _scatter(int(m[0]), m[1], m[2], m[3], dx, dy, dz,
+                                                      gx, gy, gz, front, w, absorbed, rr, s)
             if w == 0.0:
                 break
-            ox = px + eps * gx
-            oy = py + eps * gy
-            oz = pz + eps * gz
+            ox = px + side * gx
+            oy = py + side * gy
+            oz = pz + side * gz
             ox -= np.floor(ox / lx) * lx
             oy -= np.floor(oy / ly) * ly
         _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b,

@@ -15,7 +15,7 @@ import hashlib
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from .materials import Material, Mirror
+from .materials import DIELECTRIC, Material, Mirror
 
 __all__ = ["GaussianSurface", "Heightfield"]
 
@@ -78,6 +78,12 @@ class Heightfield:
         if not isinstance(material, Material):
             raise TypeError(f"material must be a Material (Mirror, Diffuse, MicroBRDF), got "
                             f"{type(material).__name__}")
+        if material.code == DIELECTRIC:
+            # an open surface has no inside for the refracted light to travel in
+            raise ValueError(f"material must be opaque (Mirror, Diffuse, MicroBRDF) on a "
+                             f"Heightfield, which is an open surface with no inside; put a "
+                             f"Dielectric on closed parts of a Scene (closed meshes, spheres, "
+                             f"capped tubes, cylinders), got {material!r}")
         h.setflags(write=False)
         self.heights = h
         self.spacing = sp

@@ -393,11 +393,66 @@ def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, front, w, absorbed, r
         u2, s = _uniform(s)
         dx, dy, dz = _cosine_sample(gx, gy, gz, u1, u2)
     absorbed += w * (1.0 - f)
-    w *= f
+    w, s = _roulette(w * f, rr, s)
+    return dx, dy, dz, w, absorbed, s
+
+
+@njit(inline="always")
+def _roulette(w, rr, s):
+    """Russian roulette: a weight below rr survives with probability w / rr at weight rr
+    (unbiased: the expected weight is w), else becomes 0. One draw, only when w < rr."""
     if w < rr:
         u1, s = _uniform(s)
         w = rr if u1 * rr < w else 0.0
-    return dx, dy, dz, w, absorbed, s
+    return w, s
+
+
+@njit(inline="always")
+def _dielectric(ior, dx, dy, dz, gx, gy, gz, front, w, rr, s):
+    """One event at a smooth dielectric facet of relative index ``ior`` for a ray along d
+    that hit it with normal g facing the ray; ``front``: the ray arrives from outside (it
+    would enter, relative index n) or from inside (it would leave, 1 / n).
+
+    Reflects with the exact unpolarised Fresnel probability F (_fresnel1 with k = 0: it
+    handles relative indices below 1 and gives F = 1 beyond the critical angle), else
+    refracts by Snell's law. Choosing by probability F instead of splitting the weight
+    keeps the weight unchanged (unbiased: the expected contribution of each branch is F,
+    resp. 1 - F, times the weight), so only absorption along segments (_attenuate) and
+    roulette change it. One uniform draw for the choice, then _roulette.
+    Returns (new direction, weight, stream, refracted)."""
+    ci = min(1.0, max(0.0, -(dx * gx + dy * gy + dz * gz)))
+    eta = ior if front else 1.0 / ior  # n2 / n1 across the facet
+    f = _fresnel1(ci, eta, 0.0)
+    u, s = _uniform(s)
+    refracted = u >= f  # never under total internal reflection (F = 1 > u)
+    if refracted:
+        # t = d / eta + (ci / eta - ct) g: the tangential part shrinks by 1 / eta and the
+        # normal part, -ct along g, points through the facet
+        r = 1.0 / eta
+        ct = np.sqrt(max(0.0, 1.0 - r * r * (1.0 - ci) * (1.0 + ci)))
+        a = r * ci - ct
+        dx = r * dx + a * gx
+        dy = r * dy + a * gy
+        dz = r * dz + a * gz
+    else:
+        dx += 2.0 * ci * gx
+        dy += 2.0 * ci * gy
+        dz += 2.0 * ci * gz
+    inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
+    w, s = _roulette(w, rr, s)
+    return dx * inv, dy * inv, dz * inv, w, s, refracted
+
+
+@njit(inline="always")
+def _attenuate(sigma, t, w, absorbed):
+    """Beer-Lambert loss over a segment of length t in a medium of absorption sigma: the
+    weight keeps exp(-sigma t), the rest is added to ``absorbed`` (the two sum to the old
+    weight up to rounding). Returns (w, absorbed)."""
+    if sigma > 0.0:
+        loss = -w * np.expm1(-sigma * t)
+        absorbed += loss
+        w -= loss
+    return w, absorbed
 
 
 @njit(inline="always")

@@ -220,3 +220,61 @@ def test_bad_eval():
         cm.eval([0, 1.0], [0, 0, 1.0])
     with pytest.raises(ValueError, match="wo must be unit vectors"):
         cm.eval([0, 0, 1.0], [0, 0, 2.0])
+
+
+def _turn(w, angle):
+    """R^-1 w for R the turn by ``angle`` about z."""
+    c, s = np.cos(angle), np.sin(angle)
+    return np.stack([c * w[..., 0] + s * w[..., 1], -s * w[..., 0] + c * w[..., 1], w[..., 2]],
+                    -1)
+
+
+@pytest.mark.parametrize("basis", [HemiZernike(6), HemiHarmonics(6), HemiHarmonics(5, "even"),
+                                   SphericalHarmonics(4)], ids=repr)
+@pytest.mark.parametrize("angle", [0.3, np.pi / 2, -2.1, 17.0])
+def test_rotated_matches_turned_directions(basis, angle, rng):
+    # reference: direct evaluation at R^-1 w_i, R^-1 w_o; entries O(1) / size so values are
+    # O(1): observed max error 6e-15, the bound is ~50 eps of sums of ~size^2 terms
+    m = _random_symmetric(rng, basis.size, channels=2) / basis.size
+    cm = CoefficientMatrix(basis, m, quantity="f")
+    rot = cm.rotated(angle)
+    assert not rot.is_isotropic and rot.channels == 2 and rot.quantity == "f"
+    wi, wo = _unit_upper(rng, 200), _unit_upper(rng, 200)
+    want = cm.eval(_turn(wi, angle), _turn(wo, angle))
+    np.testing.assert_allclose(rot.eval(wi, wo), want, rtol=0,
+                               atol=1e-13 * np.max(np.abs(want)))
+    # orthogonal action: the Frobenius norm is kept
+    assert np.sum(rot.matrix**2) == pytest.approx(np.sum(m**2), rel=1e-13)
+
+
+def test_rotated_quarter_turns_and_least_squares_action(rng):
+    zb = HemiZernike(5)
+    cm = CoefficientMatrix(zb, _random_symmetric(rng, zb.size), quantity="f_cos")
+    four = cm
+    for _ in range(4):
+        four = four.rotated(np.pi / 2)
+    # four products with cos/sin(m pi / 2) that are 0 only to 6e-17: ~1e-15 on entries ~5
+    np.testing.assert_allclose(four.matrix, cm.matrix, rtol=0, atol=1e-13)
+    # independent action: least squares b(R^-1 w) = A b(w) on random directions (as
+    # tests/project/test_scene.rotation_action, here for a generic angle)
+    angle = 0.9
+    w = _unit_upper(rng, 400)
+    at = np.linalg.lstsq(zb.eval(w), zb.eval(_turn(w, angle)), rcond=None)[0]
+    np.testing.assert_allclose(cm.rotated(angle).matrix, at @ cm.matrix @ at.T, rtol=0,
+                               atol=1e-11)  # lstsq of a well-conditioned 21-column system
+
+
+def test_rotated_isotropic_is_unchanged(rng):
+    zb = HemiZernike(4)
+    iso = CoefficientMatrix(zb, _random_symmetric(rng, zb.size)).to_isotropic()
+    assert iso.rotated(1.234) is iso
+
+
+@pytest.mark.parametrize("angle, exc, match", [
+    ("a", TypeError, "angle must be a number"),
+    (np.inf, ValueError, "angle must be finite, got inf"),
+])
+def test_rotated_bad_angle(angle, exc, match, rng):
+    cm = CoefficientMatrix(HemiZernike(2), _random_symmetric(rng, 6))
+    with pytest.raises(exc, match=match):
+        cm.rotated(angle)

@@ -15,7 +15,6 @@ from basis import HemiHarmonics
 from project.microgeometry import (
     Diffuse,
     GaussianSurface,
-    MicroBRDF,
     Mirror,
     Scene,
     brushed_metal,
@@ -23,7 +22,7 @@ from project.microgeometry import (
     trace,
 )
 from project.microgeometry.bvh import BVH, CYLINDER, TRIANGLE, Mesh
-from project.models import Lambert, fresnel
+from project.models import fresnel
 
 K_SIGMA = 5.0
 
@@ -390,9 +389,6 @@ def test_scene_bad_input():
         Scene(1.0).add_cylinder("z", 0.5, 0.0, 0.3)
     with pytest.raises(ValueError, match=r"radius finite and > 0"):
         Scene(1.0).add_cylinder("x", 0.5, 0.0, 0.0)
-    with pytest.raises(NotImplementedError, match=r"MicroBRDF facets are supported on "
-                                                  r"Heightfield only"):
-        Scene(1.0).add_plane(0.0, material=MicroBRDF(Lambert(0.5)))
     with pytest.raises(TypeError, match=r"material must be a Material"):
         Scene(1.0).add_plane(0.0, material="gold")
     with pytest.raises(TypeError, match=r"mesh must be a Mesh"):

@@ -1,0 +1,479 @@
+"""Analytic primitives of the BVH (spheres, finite tubes with or without caps), the SAH build
+and its stack-depth guarantee, and the Scene methods that add spheres and tubes.
+
+References are independent numpy brute force: textbook quadratics solved in a local frame of
+each primitive (not the cross-product form of the kernels), discs by a plane test, periodic
+copies laid out explicitly. Distances agree to ~1e-10 (both sides round at ~1e-15 relative
+on distances of order 1; the textbook quadratic loses a few digits to cancellation, whence
+the margin). Monte Carlo assertions use k = 5 standard errors; seeds are fixed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from basis import HemiZernike
+from project.microgeometry import Diffuse, Mirror, Scene, simulate, trace
+from project.microgeometry.bvh import (
+    _STACK,
+    BVH,
+    CYLINDER,
+    SPHERE,
+    TRIANGLE,
+    TUBE,
+    _build,
+    _periodic_hit,
+    _prim_bounds,
+)
+
+K_SIGMA = 5.0
+
+
+# -- brute-force references -------------------------------------------------------------------
+
+def _nearest(best_t, best_n, t, n, ok):
+    take = ok & (t > 0) & (t < best_t)
+    best_t = np.where(take, t, best_t)
+    best_n = np.where(take[:, None], n, best_n)
+    return best_t, best_n
+
+
+def brute_spheres(o, d, sph):
+    """(n,) first hit distance and (n, 3) outward normal of rays with spheres (S, 9)."""
+    best_t = np.full(o.shape[0], np.inf)
+    best_n = np.zeros((o.shape[0], 3))
+    for cx, cy, cz, r, *_ in sph:
+        oc = o - [cx, cy, cz]
+        a = np.sum(d * d, 1)
+        b = 2 * np.sum(oc * d, 1)
+        c = np.sum(oc * oc, 1) - r * r
+        disc = b * b - 4 * a * c
+        sq = np.sqrt(np.maximum(disc, 0))
+        for t in ((-b - sq) / (2 * a), (-b + sq) / (2 * a)):
+            n = (o + t[:, None] * d - [cx, cy, cz]) / r
+            best_t, best_n = _nearest(best_t, best_n, t, n, disc >= 0)
+    return best_t, best_n
+
+
+def brute_tubes(o, d, tub):
+    """(n,) first hit distance and (n, 3) outward normal with tubes (T, 9) = (p0, p1, r,
+    caps): the ray in a local frame (e1, e2, u) of each tube, the circle x^2 + y^2 = r^2 for
+    0 <= z <= L, and the discs z = 0, L when capped."""
+    best_t = np.full(o.shape[0], np.inf)
+    best_n = np.zeros((o.shape[0], 3))
+    for row in tub:
+        p0, p1, r, caps = row[0:3], row[3:6], row[6], row[7]
+        length = np.linalg.norm(p1 - p0)
+        u = (p1 - p0) / length
+        h = np.array([1.0, 0, 0]) if abs(u[0]) < 0.9 else np.array([0, 1.0, 0])
+        e1 = h - (h @ u) * u
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(u, e1)
+        frame = np.stack([e1, e2, u])
+        lo_ = (o - p0) @ frame.T
+        ld = d @ frame.T
+        a = ld[:, 0] ** 2 + ld[:, 1] ** 2
+        b = 2 * (lo_[:, 0] * ld[:, 0] + lo_[:, 1] * ld[:, 1])
+        c = lo_[:, 0] ** 2 + lo_[:, 1] ** 2 - r * r
+        disc = b * b - 4 * a * c
+        sq = np.sqrt(np.maximum(disc, 0))
+        with np.errstate(all="ignore"):
+            for t in ((-b - sq) / (2 * a), (-b + sq) / (2 * a)):
+                p = lo_ + t[:, None] * ld
+                n = np.column_stack([p[:, 0], p[:, 1], np.zeros_like(t)]) / r @ frame
+                ok = (disc >= 0) & (a > 0) & (p[:, 2] >= 0) & (p[:, 2] <= length)
+                best_t, best_n = _nearest(best_t, best_n, t, n, ok)
+            if caps:
+                for z, sign in ((0.0, -1.0), (length, 1.0)):
+                    t = (z - lo_[:, 2]) / ld[:, 2]
+                    p = lo_ + t[:, None] * ld
+                    ok = np.isfinite(t) & (p[:, 0] ** 2 + p[:, 1] ** 2 <= r * r)
+                    best_t, best_n = _nearest(best_t, best_n, t, np.broadcast_to(sign * u, p.shape),
+                                              ok)
+    return best_t, best_n
+
+
+def random_rays(rng, n, lo, hi):
+    o = rng.uniform(lo, hi, (n, 3))
+    d = rng.normal(size=(n, 3))
+    return o, d / np.linalg.norm(d, axis=1)[:, None]
+
+
+def random_spheres(rng, n):
+    sph = np.zeros((n, 9))
+    sph[:, 0:3] = rng.uniform(-1, 1, (n, 3))
+    sph[:, 3] = rng.uniform(0.05, 0.4, n)
+    return sph
+
+
+def random_tubes(rng, n, caps):
+    """Tubes with random axes, the first three vertical, along x and along y."""
+    axis = rng.normal(size=(n, 3))
+    axis[:3] = np.eye(3)[[2, 0, 1]]
+    axis /= np.linalg.norm(axis, axis=1)[:, None]
+    tub = np.zeros((n, 9))
+    tub[:, 0:3] = rng.uniform(-1, 1, (n, 3))
+    tub[:, 3:6] = tub[:, 0:3] + rng.uniform(0.2, 1.5, n)[:, None] * axis
+    tub[:, 6] = rng.uniform(0.05, 0.3, n)
+    tub[:, 7] = caps
+    return tub
+
+
+def expected_normal(d, outward):
+    """The kernels' normal: the outward one turned to face the ray (front = d.n <= 0)."""
+    s = np.where(np.sum(d * outward, 1) <= 0, 1.0, -1.0)
+    return s[:, None] * outward
+
+
+# -- analytic primitives against brute force --------------------------------------------------
+
+def test_spheres_match_brute_force(rng):
+    sph = random_spheres(rng, 60)
+    bvh = BVH(np.full(60, SPHERE), sph)
+    o, d = random_rays(rng, 4000, -2, 2)
+    t, prim, nrm = bvh.intersect(o, d)
+    ref, outward = brute_spheres(o, d, sph)
+    hit = np.isfinite(ref)
+    assert 0.1 < hit.mean() < 0.9  # a real mix of hits and misses, some from inside
+    np.testing.assert_array_equal(np.isfinite(t), hit)
+    np.testing.assert_allclose(t[hit], ref[hit], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(nrm[hit], expected_normal(d[hit], outward[hit]), rtol=0,
+                               atol=1e-9)
+    # the reported sphere carries the hit point on its surface
+    p = o[hit] + t[hit, None] * d[hit]
+    np.testing.assert_allclose(np.linalg.norm(p - sph[prim[hit], :3], axis=1),
+                               sph[prim[hit], 3], rtol=1e-10)
+
+
+@pytest.mark.parametrize("caps", [0.0, 1.0])
+def test_tubes_match_brute_force(rng, caps):
+    tub = random_tubes(rng, 40, caps)
+    tub[0, :6] = [3.0, 3.0, 0.0, 3.0, 3.0, 1.0]  # vertical, apart from the others
+    bvh = BVH(np.full(40, TUBE), tub)
+    o, d = random_rays(rng, 4000, -2, 2)
+    # rays along the vertical axis, inside the vertical tube: they meet only its top cap
+    d[:20] = [0.0, 0.0, -1.0]
+    o[:20, 2] = 3.0
+    o[:10, :2] = tub[0, :2] + rng.uniform(-0.03, 0.03, (10, 2))
+    t, prim, nrm = bvh.intersect(o, d)
+    ref, outward = brute_tubes(o, d, tub)
+    hit = np.isfinite(ref)
+    assert 0.2 < hit.mean() < 0.95
+    np.testing.assert_array_equal(np.isfinite(t), hit)
+    np.testing.assert_allclose(t[hit], ref[hit], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(nrm[hit], expected_normal(d[hit], outward[hit]), rtol=0,
+                               atol=1e-9)
+    if caps:  # the vertical rays above the vertical tube land on its top cap
+        np.testing.assert_allclose(t[:10], 3.0 - tub[0, 5], rtol=0, atol=1e-14)
+        np.testing.assert_array_equal(nrm[:10], np.broadcast_to([0.0, 0.0, 1.0], (10, 3)))
+    else:
+        assert np.all(prim[:10] != 0)
+
+
+def test_rays_from_inside_find_the_far_wall_from_behind(rng):
+    # one sphere and one capped tube (tilted); origins inside each, random directions
+    sph = np.array([[0.3, -0.2, 0.1, 0.7, 0, 0, 0, 0, 0]])
+    tub = np.array([[2.0, 0.0, -0.5, 2.4, 0.3, 1.2, 0.25, 1.0, 0]])
+    bvh = BVH([SPHERE, TUBE], np.concatenate([sph, tub]))
+    n = 2000
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    o_s = sph[0, :3] + 0.69 * u * rng.uniform(0, 1, (n, 1)) ** (1 / 3)
+    s = rng.uniform(0.01, 0.99, n)
+    axis = tub[0, 3:6] - tub[0, 0:3]
+    side = np.cross(axis, u)
+    side /= np.linalg.norm(side, axis=1)[:, None]
+    o_t = tub[0, :3] + s[:, None] * axis + 0.24 * rng.uniform(0, 1, (n, 1)) * side
+    o = np.concatenate([o_s, o_t])
+    d = np.concatenate([u, rng.normal(size=(n, 3))])
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    t, prim, nrm = bvh.intersect(o, d)
+    ref_s, out_s = brute_spheres(o[:n], d[:n], sph)
+    ref_t, out_t = brute_tubes(o[n:], d[n:], tub)
+    np.testing.assert_array_equal(prim, np.repeat([0, 1], n))
+    np.testing.assert_allclose(t, np.concatenate([ref_s, ref_t]), rtol=0, atol=1e-10)
+    # the wall is met from inside: the normal facing the ray is the inward one
+    np.testing.assert_allclose(nrm, -np.concatenate([out_s, out_t]), rtol=0, atol=1e-9)
+    # ... and the walk reports front=False (outside rays: front=True)
+    pb = BVH([SPHERE, TUBE], np.concatenate([sph, tub]), period=(4.0, 4.0))
+    args = (4.0, 4.0, pb.lo[0, 2], pb.hi[0, 2], 1000, pb.lo, pb.hi, pb.link, pb.ptype, pb.pdata)
+    for k in range(0, 2 * n, 97):
+        st, th, *_, front = _periodic_hit(*o[k], *d[k], *args)
+        assert st == 0 and not front and abs(th - t[k]) < 1e-10
+    st, th, gx, gy, gz, _, front = _periodic_hit(0.3, -0.2, 3.0, 0.0, 0.0, -1.0, *args)
+    assert st == 0 and front and abs(th - 2.2) < 1e-14 and (gx, gy, gz) == (0.0, 0.0, 1.0)
+
+
+@pytest.mark.parametrize("winding", [1, -1])
+def test_triangle_front_follows_winding(winding):
+    # counter-clockwise seen from above: winding normal +z, the upper side is the front
+    tri = np.array([[0.2, 0.2, 0.5, 0.8, 0.2, 0.5, 0.2, 0.8, 0.5]])
+    if winding < 0:
+        tri = tri[:, [0, 1, 2, 6, 7, 8, 3, 4, 5]]
+    bvh = BVH([TRIANGLE], tri, period=(1.0, 1.0))
+    args = (1.0, 1.0, bvh.lo[0, 2], bvh.hi[0, 2], 1000, bvh.lo, bvh.hi, bvh.link, bvh.ptype,
+            bvh.pdata)
+    down = _periodic_hit(0.3, 0.3, 1.0, 0.0, 0.0, -1.0, *args)
+    up = _periodic_hit(0.3, 0.3, 0.0, 0.0, 0.0, 1.0, *args)
+    assert down[0] == up[0] == 0 and down[2:5] == (0.0, 0.0, 1.0) and up[2:5] == (0, 0, -1.0)
+    assert down[6] == (winding > 0) and up[6] == (winding < 0)
+
+
+def test_bounds_are_exact(rng):
+    # tube boxes: the ends extended by r sqrt(1 - a_k^2) per axis, reached by the rim circles
+    tub = random_tubes(rng, 20, 1.0)
+    lo, hi = _prim_bounds(np.full(20, TUBE), tub)
+    ang = np.linspace(0, 2 * np.pi, 4001)
+    for k, row in enumerate(tub):
+        u = (row[3:6] - row[0:3]) / np.linalg.norm(row[3:6] - row[0:3])
+        e1 = np.cross(u, [0.3, 0.5, 0.7])
+        e1 /= np.linalg.norm(e1)
+        e2 = np.cross(u, e1)
+        ring = row[6] * (np.cos(ang)[:, None] * e1 + np.sin(ang)[:, None] * e2)
+        pts = np.concatenate([row[0:3] + ring, row[3:6] + ring])
+        # sampled every 2 pi / 4000: the extremes are missed by at most r (1 - cos) ~ 3e-7 r
+        np.testing.assert_allclose(pts.min(0), lo[k], rtol=0, atol=1e-7)
+        np.testing.assert_allclose(pts.max(0), hi[k], rtol=0, atol=1e-7)
+        assert np.all(pts.min(0) >= lo[k] - 1e-15) and np.all(pts.max(0) <= hi[k] + 1e-15)
+
+
+def test_periodic_wrap_matches_explicit_tiles(rng):
+    # spheres and tilted tubes (some longer than a period) poking out of a 2 x 1.5 box on
+    # every side; reference: brute force against explicit copies on a 9 x 9 block of periods
+    lx, ly = 2.0, 1.5
+    sph = np.zeros((12, 9))
+    sph[:, 0] = rng.uniform(-0.2, lx + 0.2, 12)
+    sph[:, 1] = rng.uniform(-0.2, ly + 0.2, 12)
+    sph[:, 2] = rng.uniform(-0.2, 0.2, 12)
+    sph[:, 3] = rng.uniform(0.1, 0.4, 12)
+    tub = np.zeros((10, 9))
+    tub[:, 0] = rng.uniform(-0.2, lx + 0.2, 10)
+    tub[:, 1] = rng.uniform(-0.2, ly + 0.2, 10)
+    tub[:, 2] = rng.uniform(-0.3, 0.0, 10)
+    axis = rng.normal(size=(10, 3))
+    axis[:, 2] = np.abs(axis[:, 2]) * 0.5
+    axis /= np.linalg.norm(axis, axis=1)[:, None]
+    tub[:, 3:6] = tub[:, 0:3] + rng.uniform(0.3, 2.5, 10)[:, None] * axis
+    tub[:, 6] = rng.uniform(0.05, 0.15, 10)
+    tub[:, 7] = np.arange(10) % 2
+    bvh = BVH(np.repeat([SPHERE, TUBE], [12, 10]), np.concatenate([sph, tub]),
+              period=(lx, ly))
+    o = np.column_stack([rng.uniform(-3, 3, 1500), rng.uniform(-3, 3, 1500),
+                         np.full(1500, 1.5)])
+    d = rng.normal(size=(1500, 3))
+    d[:, 2] = -np.abs(d[:, 2]) - 0.3
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    st, t, prim, nrm = bvh.intersect_periodic(o, d)
+    shifts = np.array([[kx * lx, ky * ly, 0.0] for kx in range(-4, 5) for ky in range(-4, 5)])
+    tiles_s = np.concatenate([sph + np.r_[s, 0, 0, 0, 0, 0, 0] for s in shifts])
+    tiles_t = np.concatenate([tub + np.r_[s, s, 0, 0, 0] for s in shifts])
+    ref_s, n_s = brute_spheres(o, d, tiles_s)
+    ref_t, n_t = brute_tubes(o, d, tiles_t)
+    ref = np.minimum(ref_s, ref_t)
+    outward = np.where((ref_s <= ref_t)[:, None], n_s, n_t)
+    end = o + np.where(np.isfinite(ref), ref, 0)[:, None] * d
+    inside = np.isfinite(ref) & (np.abs(end[:, 0]) < 7) & (np.abs(end[:, 1]) < 5)
+    assert inside.sum() > 400
+    assert np.all(st[inside] == 0)
+    np.testing.assert_allclose(t[inside], ref[inside], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(nrm[inside], expected_normal(d[inside], outward[inside]),
+                               rtol=0, atol=1e-9)
+    # the primitive index is the input index of the wrapped original
+    assert np.all((prim[inside] < 12) == (ref_s[inside] <= ref_t[inside]))
+
+
+# -- the SAH build ----------------------------------------------------------------------------
+
+def _mixed(rng):
+    tri = (rng.uniform(-1, 1, (200, 1, 3)) + 0.2 * rng.normal(size=(200, 3, 3))).reshape(-1, 9)
+    cyl = np.zeros((20, 9))
+    cyl[:, 0] = rng.integers(0, 2, 20)
+    cyl[:, 1:3] = rng.uniform(-1, 1, (20, 2))
+    cyl[:, 3] = rng.uniform(0.05, 0.2, 20)
+    cyl[:, 4] = rng.uniform(-1.5, 0, 20)
+    cyl[:, 5] = cyl[:, 4] + 1.0
+    pt = np.repeat([TRIANGLE, CYLINDER, SPHERE, TUBE], [200, 20, 30, 40])
+    return pt, np.concatenate([tri, cyl, random_spheres(rng, 30), random_tubes(rng, 40, 1.0)])
+
+
+def test_sah_and_median_builds_give_the_same_hits(rng):
+    pt, pd = _mixed(rng)
+    sah = BVH(pt, pd, build="sah")
+    med = BVH(pt, pd, build="median")
+    assert sah.link.shape != med.link.shape or np.any(sah.link != med.link)  # other trees
+    o, d = random_rays(rng, 4000, -2, 2)
+    t1, p1, n1 = sah.intersect(o, d)
+    t2, p2, n2 = med.intersect(o, d)
+    # the same primitive tests on the same rays: bit-identical results
+    np.testing.assert_array_equal(t1, t2)
+    np.testing.assert_array_equal(p1, p2)
+    np.testing.assert_array_equal(n1, n2)
+    assert 0.2 < np.isfinite(t1).mean() < 0.95
+    # every primitive appears exactly once in the leaves of both
+    for b in (sah, med):
+        leaves = b.link[b.link[:, 1] > 0]
+        cover = np.concatenate([np.arange(s, s + c) for s, c in leaves])
+        np.testing.assert_array_equal(np.sort(cover), np.arange(pt.size))
+        np.testing.assert_array_equal(np.sort(b.source), np.arange(pt.size))
+
+
+def test_stack_depth_is_guaranteed_on_pathological_input():
+    # a line of spheres shrinking geometrically towards x = 0: every SAH split cuts off the
+    # few largest, so unconstrained SAH goes deeper than the traversal stack allows
+    k = np.arange(1000)
+    x = 1.2 ** -k
+    sph = np.zeros((1000, 9))
+    sph[:, 0] = x
+    sph[:, 3] = 0.01 * x
+    lo, hi = _prim_bounds(np.full(1000, SPHERE), sph)
+    assert _build(lo, hi, "sah", max_depth=10_000)[4] > _STACK  # would overflow
+    bvh = BVH(np.full(1000, SPHERE), sph)
+    assert bvh.depth <= _STACK - 1
+    # rays straight down onto every sphere from twice its radius, the deepest leaves included
+    o = np.column_stack([x, np.zeros(1000), 2 * sph[:, 3]])
+    d = np.broadcast_to([0.0, 0.0, -1.0], (1000, 3))
+    t, prim, _ = bvh.intersect(o, d)
+    np.testing.assert_array_equal(prim, k)
+    np.testing.assert_allclose(t, sph[:, 3], rtol=1e-14)
+    # many identical primitives: no split separates them, median halving keeps it shallow
+    same = BVH(np.full(5000, SPHERE), np.tile(sph[:1], (5000, 1)))
+    assert same.depth == 11  # ceil(log2(5000 / LEAF))
+    t, prim, _ = same.intersect([[1.0, 0.0, 1.0]], [[0.0, 0.0, -1.0]])
+    assert abs(t[0] - 0.99) < 1e-15 and 0 <= prim[0] < 5000
+
+
+def test_bvh_bad_input():
+    with pytest.raises(ValueError, match=r"ptype must be TRIANGLE \(0\), .* got 7 at index 1"):
+        BVH([SPHERE, 7], np.ones((2, 9)))
+    with pytest.raises(ValueError, match=r"build must be one of \('sah', 'median'\), got 'x'"):
+        BVH([SPHERE], np.ones((1, 9)), build="x")
+
+
+# -- scenes -----------------------------------------------------------------------------------
+
+def test_scene_spheres_and_tubes_are_packed_and_counted():
+    s = (Scene((2.0, 1.0)).add_plane(0.0).add_sphere([0.5, 0.5, 0.2], 0.2)
+         .add_tube([[0.1, 0.2, 0.0], [1.0, 0.5, 0.0]], [[0.2, 0.2, 0.4], [1.0, 0.5, 0.3]],
+                   [0.01, 0.02], caps=False))
+    assert (s.triangles, s.cylinders, s.spheres, s.tubes) == (2, 0, 1, 2)
+    assert repr(s) == "Scene(period=[2.0, 1.0], triangles=2, cylinders=0, spheres=1, tubes=2)"
+    pt, pd, mats = s._packed()
+    assert pt.tolist() == [TRIANGLE, TRIANGLE, SPHERE, TUBE, TUBE]
+    np.testing.assert_array_equal(pd[2], [0.5, 0.5, 0.2, 0.2, 0, 0, 0, 0, 0])
+    np.testing.assert_array_equal(pd[4], [1.0, 0.5, 0.0, 1.0, 0.5, 0.3, 0.02, 0.0, 0])
+    assert mats.shape == (5, 4)
+
+
+def test_rotated_scene_turns_spheres_and_tubes(rng):
+    # tracing the turned scene with turned rays gives the same distances
+    s = (Scene((2.0, 1.5)).add_plane(0.0)
+         .add_sphere(rng.uniform([0, 0, 0], [2, 1.5, 0.3], (5, 3)), 0.25)
+         .add_tube(rng.uniform([0, 0, 0], [2, 1.5, 0], (6, 3)),
+                   rng.uniform([-0.5, -0.5, 0.3], [2.5, 2, 0.6], (6, 3)), 0.05))
+    r = s.rotated()
+    assert r.period.tolist() == [1.5, 2.0] and (r.spheres, r.tubes) == (5, 6)
+    o = np.column_stack([rng.uniform(0, 2, 800), rng.uniform(0, 1.5, 800), np.full(800, 1.0)])
+    d = rng.normal(size=(800, 3))
+    d[:, 2] = -np.abs(d[:, 2]) - 0.2
+    d /= np.linalg.norm(d, axis=1)[:, None]
+
+    def turn(v, shift):
+        return np.column_stack([shift - v[:, 1], v[:, 0], v[:, 2]])
+
+    st1, t1, p1, n1 = s.bvh.intersect_periodic(o, d)
+    st2, t2, p2, n2 = r.bvh.intersect_periodic(turn(o, 1.5), turn(d, 0.0))
+    assert np.all(st1 == 0) and np.all(st2 == 0)
+    np.testing.assert_array_equal(p1, p2)
+    # a turn of the coordinates (exact up to the subtraction Ly - y): 1e-12 on distances ~2
+    np.testing.assert_allclose(t2, t1, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(n2, turn(n1, 0.0), rtol=0, atol=1e-12)
+    assert np.sum(p1 >= 7) > 50  # the tubes are hit
+
+
+@pytest.mark.parametrize("call, exc, match", [
+    (lambda s: s.add_sphere([0.5, np.nan, 0.0], 0.1), ValueError,
+     r"center must be finite: 1 of 1 points are NaN or inf"),
+    (lambda s: s.add_sphere([0.5, 0.5], 0.1), ValueError,
+     r"center must be a point \(3,\) or points \(n, 3\) with n >= 1, got shape \(2,\)"),
+    (lambda s: s.add_sphere(np.zeros((0, 3)), 0.1), ValueError, r"with n >= 1"),
+    (lambda s: s.add_sphere("here", 0.1), TypeError, r"center must be a point"),
+    (lambda s: s.add_sphere([0, 0, 0], 0.0), ValueError,
+     r"radius must be finite and > 0, got 0.0 \(primitive 0\)"),
+    (lambda s: s.add_sphere([[0, 0, 0], [1, 1, 1]], [0.1, -1.0]), ValueError,
+     r"radius must be finite and > 0, got -1.0 \(primitive 1\)"),
+    (lambda s: s.add_sphere([[0, 0, 0], [1, 1, 1]], [0.1, 0.1, 0.1]), ValueError,
+     r"radius must be a number or 2 numbers \(one per primitive\), got shape \(3,\)"),
+    (lambda s: s.add_sphere([0, 0, 0], np.inf), ValueError, r"radius must be finite"),
+    (lambda s: s.add_tube([0, 0, 0], [0, 0, 0], 0.1), ValueError,
+     r"start and end must be distinct points: 1 of 1 tubes have \(near\) zero length "
+     r"\(first: tube 0"),
+    (lambda s: s.add_tube([0, 0, 0], [0, 0, np.inf], 0.1), ValueError, r"end must be finite"),
+    (lambda s: s.add_tube(np.zeros((2, 3)), np.ones((3, 3)), 0.1), ValueError,
+     r"start and end must hold the same number of points, got 2 and 3"),
+    (lambda s: s.add_tube([0, 0, 0], [0, 0, 1], 0.1, caps="yes"), TypeError,
+     r"caps must be True or False, got 'yes'"),
+    (lambda s: s.add_tube([0, 0, 0], [0, 0, 1], -0.1), ValueError, r"radius must be finite"),
+    (lambda s: s.add_tube([0, 0, 0], [0, 0, 1], 0.1, material="glass"), TypeError,
+     r"material must be a Material"),
+])
+def test_scene_sphere_and_tube_bad_input(call, exc, match):
+    with pytest.raises(exc, match=match):
+        call(Scene(1.0))
+
+
+def test_one_start_many_ends():
+    s = Scene(1.0).add_tube([0.5, 0.5, 0.0], [[0.4, 0.5, 0.3], [0.6, 0.5, 0.3]], 0.01)
+    pd = s._packed()[1]
+    np.testing.assert_array_equal(pd[:, 0:3], [[0.5, 0.5, 0.0]] * 2)
+
+
+# -- energy -----------------------------------------------------------------------------------
+
+def _pile(rng):
+    """Lossless closed scene: mirror spheres and tilted capped tubes (poking out of the
+    period; the tubes' feet sunk into the plane) on a lossless diffuse plane."""
+    s = Scene((1.0, 1.0)).add_plane(0.0, material=Diffuse(1.0))
+    s.add_sphere(np.column_stack([rng.uniform(0, 1, (6, 2)), rng.uniform(0.1, 0.3, 6)]), 0.2)
+    base = np.column_stack([rng.uniform(0, 1, (20, 2)), np.full(20, -0.05)])
+    tilt = rng.uniform(0, np.radians(30), 20)
+    az = rng.uniform(0, 2 * np.pi, 20)
+    top = base + 0.4 * np.column_stack([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az),
+                                        np.cos(tilt)])
+    return s.add_tube(base, top, 0.03, material=Mirror())
+
+
+@pytest.mark.parametrize("theta", [0.0, 60.0])
+def test_lossless_spheres_and_tubes_keep_every_ray(rng, theta):
+    # every facet reflects all: each ray leaves upwards with weight exactly 1
+    t = np.radians(theta)
+    p = trace(_pile(rng), [np.sin(t), 0.0, np.cos(t)], 20000, seed=2)
+    assert p.lost.sum() == 0.0 and np.all(p.weights == 1.0) and np.all(p.absorbed == 0.0)
+    assert np.all(p.directions[:, 2] > 0) and np.mean(p.bounces >= 2) > 0.2
+
+
+def test_lossless_spheres_and_tubes_matrix_albedo(rng):
+    # albedo 1 and reciprocity: int q(wi, wo) dwo = cos_i. HemiZernike holds the constant
+    # b_0 = 1 / sqrt(2 pi), so M c with c_k = int_H b_k = sqrt(2 pi) delta_k0 must equal
+    # int_H b_j cos exactly (no truncation); M is symmetrised, so half of M[:, 0] comes from
+    # the exit directions. sigma of (M c)_j = sqrt(2 pi) stderr_j0.
+    b = HemiZernike(4)
+    res = simulate(_pile(rng), b, rays=40000, seed=1, chunk=250)  # 20 batches
+    x, wq = np.polynomial.legendre.leggauss(12)
+    z = 0.5 * (x + 1)
+    phi = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    zz, pp = np.meshgrid(z, phi, indexing="ij")
+    r = np.sqrt(1 - zz * zz)
+    w = np.stack([r * np.cos(pp), r * np.sin(pp), zz], -1).reshape(-1, 3)
+    # exact: the m = 0 functions are polynomials in z of degree <= 4, the others vanish on
+    # the uniform azimuth grid
+    wts = (0.5 * wq[:, None] * np.full(16, 2 * np.pi / 16)).reshape(-1)
+    bw = b.eval(w)
+    c = wts @ bw
+    np.testing.assert_allclose(c, np.sqrt(2 * np.pi) * (np.arange(b.size) == 0), rtol=0,
+                               atol=1e-13)
+    ref = (wts * w[:, 2]) @ bw
+    got = res.matrix.matrix @ c
+    se = res.stderr @ np.abs(c)
+    assert res.energy == {"reflected": 1.0, "absorbed": 0.0, "escaped": 0.0}
+    assert np.all(np.abs(got - ref) < K_SIGMA * se + 1e-12), (got - ref) / se

@@ -1,0 +1,262 @@
+"""MicroBRDF facets on Scenes (bounce-by-bounce tracing through the periodic BVH): lossless
+albedo, the flat-plane projection reference, agreement with the height-field wavefront and
+with the path tracer, mixed materials, rough brushed aluminium (energy, anisotropy, rotation,
+blur), determinism across threads, bad input.
+
+Monte Carlo assertions use k = 5 standard errors (K_SIGMA of test_scene.py); seeds are fixed.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numba
+import numpy as np
+import pytest
+
+from basis import HemiHarmonics, HemiZernike
+from project import project
+from project.microgeometry import (
+    Dielectric,
+    Diffuse,
+    GaussianSurface,
+    MicroBRDF,
+    Scene,
+    brushed_metal,
+    simulate,
+    trace,
+)
+from project.microgeometry.bvh import Mesh
+from project.microgeometry.scatter import facet_frame
+from project.microgeometry.trace import MAX_BOUNCES, MAX_STEPS, _alloc, _seed
+from project.microgeometry.wavefront import _frame, run_scene_wavefront
+from project.models import CookTorrance, GlossyPaint, Lambert
+from tests.project.test_scene import ALUMINIUM, K_SIGMA, _dir, rotated_z, rotation_action
+
+#: slightly rough aluminium: Beckmann RMS slope 0.2, n + i k = 0.96 + 6.69 i (550 nm)
+ROUGH_AL = CookTorrance(0.0, 0.2, ior=0.96, k=6.69)
+
+
+def _mean_z(x: np.ndarray, ref: float) -> float:
+    """|mean(x) - ref| in standard errors of the mean (inf-safe for constant x)."""
+    se = x.std() / np.sqrt(x.size)
+    return abs(x.mean() - ref) / se if se > 0 else (0.0 if x.mean() == ref else np.inf)
+
+
+# -- energy and the independent references ----------------------------------------------------
+
+@pytest.mark.parametrize("theta", [0.0, 50.0, 85.0])
+def test_lossless_micro_lambert_scene_albedo_is_one(theta):
+    # Lambert(1) facets, sampled by cosine: factor pi f cos / pdf = 1 up to rounding at every
+    # event, so every ray leaves with weight 1 (a few ulps per bounce: 1e-12 bounds 17
+    # bounces by far) and nothing is lost; raised cylinders trap rays beneath them
+    mat = MicroBRDF(Lambert(1.0))
+    s = (Scene(1.0).add_plane(0.0, material=mat)
+         .add_cylinder("y", 0.5, 0.1, 0.3, material=mat))
+    p = trace(s, _dir(theta, 20), 5000, seed=1)
+    assert p.lost.sum() == 0.0 and np.all(p.directions[:, 2] > 0)
+    np.testing.assert_allclose(p.weights, 1.0, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(p.weights + p.absorbed + p.lost, 1.0, rtol=0, atol=1e-12)
+    assert np.max(p.bounces) >= 5
+
+
+@pytest.mark.parametrize("brdf, basis", [
+    (CookTorrance(0.0, 0.3, ior=0.96, k=6.69), HemiZernike(4)),  # conductor Fresnel
+    (GlossyPaint(0.5, 0.3), HemiHarmonics(4)),                     # delta branch
+], ids=repr)
+def test_flat_micro_scene_plane_reproduces_projection(brdf, basis):
+    # one event on a flat plane is the microscale BRDF itself: the simulated matrix equals
+    # the quadrature projection within K_SIGMA batch-means standard errors per entry
+    # (observed max 3.1 and 3.4 sigma)
+    s = Scene((1.0, 2.0)).add_plane(0.3, material=MicroBRDF(brdf))
+    res = simulate(s, basis, rays=80000, seed=2, chunk=1000)
+    with warnings.catch_warnings():  # low orders: the projection's truncation warnings
+        warnings.simplefilter("ignore", RuntimeWarning)
+        ref = project(brdf, basis).matrix
+    err = np.abs(res.matrix.matrix - ref)
+    assert np.all(err <= K_SIGMA * res.stderr + 1e-12), np.max(err / res.stderr)
+
+
+def test_heightfield_in_scene_traces_like_the_height_field_wavefront():
+    # same triangles, same streams and start lines: the BVH walk reproduces the max-pyramid
+    # walk up to rounding (observed 1e-15 on all 3 x 4000 rays); a rare ray may diverge at
+    # a rounding-level tie (grazing hit, roulette threshold), so allow 1 in 1000
+    g = GaussianSurface(1.0, 6.5, resolution=32, seed=3, material=MicroBRDF(ROUGH_AL))
+    s = Scene(g.period).add_heightfield(g)
+    for theta in (0.0, 60.0, 85.0):
+        a = trace(g, _dir(theta, 30), 4000, seed=1)
+        b = trace(s, _dir(theta, 30), 4000, seed=1)
+        same = (a.bounces == b.bounces) & (np.abs(a.weights - b.weights) < 1e-12)
+        assert same.mean() >= 0.999
+        np.testing.assert_allclose(b.directions[same], a.directions[same], rtol=0, atol=1e-12)
+        assert np.max(a.bounces) >= 2
+
+
+def test_micro_facets_facing_along_x():
+    # vertical walls with normals exactly +-x (a square ridge of a mesh): the frame's
+    # projected x axis vanishes there and the projected y takes over; lossless Lambert
+    # facets must still return every ray with weight 1 (1e-12: rounding per bounce) and
+    # finite directions. The walls are hit at oblique incidence from the side.
+    v = [[0.25, 0, 0], [0.25, 1, 0], [0.25, 1, 0.3], [0.25, 0, 0.3],
+         [0.75, 0, 0], [0.75, 1, 0], [0.75, 1, 0.3], [0.75, 0, 0.3]]
+    f = [[0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6], [3, 2, 6], [3, 6, 7]]
+    mat = MicroBRDF(Lambert(1.0))
+    s = Scene(1.0).add_plane(0.0, material=mat).add_mesh(Mesh(v, f), material=mat)
+    p = trace(s, _dir(70, 0), 4000, seed=2)
+    assert np.all(np.isfinite(p.directions)) and p.lost.sum() == 0.0
+    np.testing.assert_allclose(p.weights, 1.0, rtol=0, atol=1e-12)
+    g = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.6, 0.0, 0.8]])
+    t, b = _frame(g)
+    np.testing.assert_allclose(np.stack([t, b, g], 1) @ np.stack([t, b, g], 1).transpose(
+        0, 2, 1), np.broadcast_to(np.eye(3), (3, 3, 3)), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(np.sum(np.cross(t, b) * g, 1), 1.0, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(t[2], facet_frame(g[2:])[0][0])  # the usual frame elsewhere
+
+
+def _wavefront_paths(scene: Scene, wi: np.ndarray, rays: int, seed: int) -> tuple:
+    """The scene traced by run_scene_wavefront even without MicroBRDF parts (one material
+    slot per part, as Scene._run builds them)."""
+    out = _alloc(rays)
+    bvh = scene.bvh
+    mats = [m for _, _, m in scene._parts]
+    slot = np.concatenate([np.full(r.shape[0], j) for j, (_, r, _) in enumerate(scene._parts)])
+    w = wi[None] / np.linalg.norm(wi)  # as trace() normalises it
+    run_scene_wavefront(bvh, scene.period, mats, slot[bvh.source], w, rays, _seed(seed), 0, out,
+                        MAX_BOUNCES, MAX_STEPS)
+    return out
+
+
+def test_wavefront_mirror_and_diffuse_facets_are_the_path_tracers():
+    # Mirror / Diffuse hits in the wavefront go through trace._scatter with the path
+    # tracer's streams and draws: a scene without MicroBRDF parts traced both ways gives
+    # bit-identical paths (Fresnel aluminium cylinders, a grey diffuse plane: roulette too)
+    s = (Scene(1.0).add_plane(0.0, material=Diffuse(0.3))
+         .add_cylinder("x", 0.5, 0.1, 0.35, material=ALUMINIUM))
+    wi = _dir(40, 30)
+    p = trace(s, wi, 5000, seed=7)
+    out = _wavefront_paths(s, wi, 5000, 7)
+    for got, ref in zip(out, p, strict=True):
+        np.testing.assert_array_equal(got, ref)
+    assert np.max(p.bounces) >= 3 and np.any(p.weights == 0)
+
+
+def test_mixed_micro_cylinders_and_diffuse_plane():
+    # MicroBRDF(Lambert(a)) and Diffuse(a) scatter with the same law, so MicroBRDF cylinders
+    # + Diffuse plane must reproduce the all-Diffuse scene (path tracer) in distribution:
+    # reflected and absorbed fractions within K_SIGMA (different streams after the first
+    # MicroBRDF event: independent errors), and energy closes per ray up to roulette
+    def scene(cyl):
+        return (Scene(1.0).add_plane(0.0, material=Diffuse(0.5))
+                .add_cylinder("y", 0.5, 0.1, 0.3, material=cyl))
+
+    wi = _dir(50, 10)
+    m = trace(scene(MicroBRDF(Lambert(0.8))), wi, 20000, seed=3)
+    d = trace(scene(Diffuse(0.8)), wi, 20000, seed=4)
+    assert m.lost.sum() == 0.0
+    tot = m.weights + m.absorbed
+    assert _mean_z(tot, 1.0) < K_SIGMA  # roulette is unbiased
+    for x, y in ((m.weights, d.weights), (m.absorbed, d.absorbed)):
+        se = np.hypot(x.std(), y.std()) / np.sqrt(x.size)
+        assert abs(x.mean() - y.mean()) < K_SIGMA * se, (x.mean(), y.mean(), se)
+    # a real mix of materials: ~40 % absorbed (observed 0.41), several bounces
+    assert 0.3 < m.absorbed.mean() < 0.5 and np.mean(m.bounces) > 1.3
+
+
+def test_micro_scene_deterministic_across_threads():
+    # per-ray streams and no cross-ray reductions: bit-identical for 1 and 2 threads
+    s = (Scene(1.0).add_plane(0.0, material=Diffuse(0.5))
+         .add_cylinder("x", 0.5, 0.1, 0.35, material=MicroBRDF(ROUGH_AL)))
+    a = trace(s, _dir(60, 30), 4000, seed=5)
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        b = trace(s, _dir(60, 30), 4000, seed=5)
+    finally:
+        numba.set_num_threads(old)
+    for x, y in zip(a, b, strict=True):
+        np.testing.assert_array_equal(x, y)
+    assert not np.array_equal(a.weights, trace(s, _dir(60, 30), 4000, seed=6).weights)
+
+
+# -- rough brushed aluminium ------------------------------------------------------------------
+
+@pytest.mark.parametrize("theta", [0.0, 60.0, 85.0])
+def test_rough_brushed_aluminium_energy_closes(theta):
+    # every facet event splits the weight into kept + absorbed; roulette is unbiased
+    s = brushed_metal(0.4, 1.0, material=ALUMINIUM, roughness=0.2)
+    p = trace(s, _dir(theta, 20), 10000, seed=4)
+    tot = p.weights + p.absorbed + p.lost
+    assert p.lost.sum() == 0.0 and _mean_z(tot, 1.0) < K_SIGMA
+    # aluminium reflects 0.92 at normal incidence; multiple bounces and the Smith loss of the
+    # rough facets take more (observed 0.83 ... 0.87)
+    assert 0.75 < p.weights.mean() < 0.92
+    assert np.all(p.directions[p.weights > 0, 2] > 0)
+
+
+@pytest.fixture(scope="module")
+def rough_brushed():
+    """HemiHarmonics(4) matrices of brushed aluminium: smooth (Mirror) along x, rough
+    (m = 0.2) along x, along y, and the rough x scene turned by 90 degrees."""
+    b = HemiHarmonics(4)
+    kw = {"rays": 100000, "chunk": 2500}
+    rough = brushed_metal(0.4, 1.0, material=ALUMINIUM, roughness=0.2)
+    return (b, simulate(brushed_metal(0.4, 1.0, material=ALUMINIUM), b, seed=1, **kw),
+            simulate(rough, b, seed=1, **kw),
+            simulate(brushed_metal(0.4, 1.0, material=ALUMINIUM, roughness=0.2, direction="y"),
+                     b, seed=2, **kw),
+            simulate(rough.rotated(), b, seed=3, **kw))
+
+
+def test_rough_brushed_aluminium_is_anisotropic_and_rotates(rough_brushed):
+    b, _, rx, ry, rrot = rough_brushed
+    a = rotation_action(b)
+    assert rotated_z(rx, ry, a) < K_SIGMA
+    assert rotated_z(rx, rrot, a) < K_SIGMA
+    assert np.max(np.abs(ry.matrix.matrix - rx.matrix.matrix)
+                  / np.hypot(ry.stderr, rx.stderr)) > 10 * K_SIGMA
+    m = np.abs(b.azimuthal)
+    off = m[:, None] != m[None, :]
+    assert np.max(np.abs(rx.matrix.matrix[off]) / rx.stderr[off]) > 10 * K_SIGMA
+
+
+def test_roughening_blurs_brushed_aluminium(rough_brushed):
+    # the share of |M|^2 in the degree >= 3 block (sharp features) falls from 0.40 (smooth)
+    # to 0.22 (m = 0.2); seed-to-seed scatter at 1e5 rays is 0.003, so the 0.1 margin is
+    # > 30 sigma
+    b, smooth, rough, _, _ = rough_brushed
+    hi = b.degree >= 3
+
+    def high_share(res):
+        mm = res.matrix.matrix
+        return float(np.sum(mm[np.ix_(hi, hi)] ** 2) / np.sum(mm**2))
+
+    assert high_share(smooth) > high_share(rough) + 0.1, (high_share(smooth), high_share(rough))
+    # the retro-reflection peak at normal incidence q(z, z) drops (observed 0.61 -> 0.49,
+    # 9 sigma with the bound sigma <= |b|^T stderr |b|, which ignores cancellations)
+    bz = b.eval(np.array([0.0, 0.0, 1.0]))
+    peak = [bz @ r.matrix.matrix @ bz for r in (smooth, rough)]
+    se = [np.abs(bz) @ r.stderr @ np.abs(bz) for r in (smooth, rough)]
+    assert peak[0] - peak[1] > K_SIGMA * np.hypot(*se), (peak, se)
+    # the Smith single-scattering loss of the rough facets absorbs a little more: reflected
+    # 0.877 -> 0.856 (standard error of each ~3e-4)
+    assert 0.0 < smooth.energy["reflected"] - rough.energy["reflected"] < 0.05
+
+
+# -- bad input --------------------------------------------------------------------------------
+
+def test_micro_scene_bad_input():
+    micro = MicroBRDF(Lambert(0.5))
+    with pytest.raises(NotImplementedError, match=r"must not mix MicroBRDF and Dielectric"):
+        Scene(1.0).add_plane(0.0, material=micro).add_cylinder(
+            "x", 0.5, 0.2, 0.1, material=Dielectric(1.5))
+    with pytest.raises(NotImplementedError, match=r"must not mix MicroBRDF and Dielectric"):
+        Scene(1.0).add_cylinder("x", 0.5, 0.2, 0.1, material=Dielectric(1.5)).add_plane(
+            0.0, material=micro)
+    with pytest.raises(ValueError, match=r"roughness must be a finite number > 0 \(or None\), "
+                                         r"got 0.0"):
+        brushed_metal(0.4, 1.0, roughness=0.0)
+    with pytest.raises(ValueError, match=r"roughness must be a finite number > 0"):
+        brushed_metal(0.4, 1.0, roughness="rough")
+    with pytest.raises(TypeError, match=r"material must be a Mirror .* when roughness is given, "
+                                        r"got Diffuse\(0.5\)"):
+        brushed_metal(0.4, 1.0, material=Diffuse(0.5), roughness=0.1)
