@@ -6,7 +6,7 @@ estimate of the coefficient matrix of f cos(theta_i) cos(theta_o) in any hemisph
 
 - :class:`GaussianSurface`, :class:`Heightfield`: the specimens.
 - :class:`Scene`, :func:`brushed_metal`, :class:`Mesh`, :class:`BVH`: periodic scenes of
-  meshes, cylinders and height fields traced through one BVH.
+  meshes, cylinders, tubes, spheres and height fields traced through one BVH.
 - :class:`Mirror`, :class:`Diffuse`, :class:`MicroBRDF`, :class:`Dielectric`: facet
   materials (Dielectric: transparent closed solids with absorption inside).
 - :func:`velvet`: transparent fibres with random tilt over an absorbing base.

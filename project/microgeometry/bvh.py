@@ -886,35 +886,26 @@ def _leaf(start, count, best, ox, oy, oz, dx, dy, dz, tmin, tmax, ptype, pdata):
 
 
 @njit(inline="always")
+def _slab(lo, hi, o, inv, t0, t1):
+    # one axis of the slab test: the interval (t0, t1) clipped to the slab lo <= o + t d <= hi
+    # (inv = 1 / d, inf for d = 0: then the origin must lie in the slab); empty when t0 > t1
+    if inv == np.inf:
+        if o < lo or o > hi:
+            return np.inf, -np.inf
+        return t0, t1
+    ta = (lo - o) * inv
+    tb = (hi - o) * inv
+    # the widening by 4 ulp keeps boxes of zero thickness (flat planes) hit
+    return max(t0, min(ta, tb)), min(t1, max(ta, tb) * (1.0 + 4e-16))
+
+
+@njit(inline="always")
 def _box(node, ox, oy, oz, ix, iy, iz, tmin, tmax, lo, hi):
     # slab test of the ray against node's box on (tmin, tmax): the entry distance (finite),
     # or inf when the ray misses the box there (ix, iy, iz: inverse direction, inf for 0)
-    t0 = tmin
-    t1 = tmax
-    if ix == np.inf:
-        if ox < lo[node, 0] or ox > hi[node, 0]:
-            return np.inf
-    else:
-        ta = (lo[node, 0] - ox) * ix
-        tb = (hi[node, 0] - ox) * ix
-        t0 = max(t0, min(ta, tb))
-        t1 = min(t1, max(ta, tb) * (1.0 + 4e-16))
-    if iy == np.inf:
-        if oy < lo[node, 1] or oy > hi[node, 1]:
-            return np.inf
-    else:
-        ta = (lo[node, 1] - oy) * iy
-        tb = (hi[node, 1] - oy) * iy
-        t0 = max(t0, min(ta, tb))
-        t1 = min(t1, max(ta, tb) * (1.0 + 4e-16))
-    if iz == np.inf:
-        if oz < lo[node, 2] or oz > hi[node, 2]:
-            return np.inf
-    else:
-        ta = (lo[node, 2] - oz) * iz
-        tb = (hi[node, 2] - oz) * iz
-        t0 = max(t0, min(ta, tb))
-        t1 = min(t1, max(ta, tb) * (1.0 + 4e-16))
+    t0, t1 = _slab(lo[node, 0], hi[node, 0], ox, ix, tmin, tmax)
+    t0, t1 = _slab(lo[node, 1], hi[node, 1], oy, iy, t0, t1)
+    t0, t1 = _slab(lo[node, 2], hi[node, 2], oz, iz, t0, t1)
     return t0 if t0 <= t1 else np.inf
 
 

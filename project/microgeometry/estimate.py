@@ -57,7 +57,9 @@ class SimulationResult:
         Westin's Q (eq 27 corrected, digest 2.9): (1/K^2) sum_jk |M~_jk - M~_kj|.
     stderr : (K, K) ndarray
         Batch-means standard error of each entry of the symmetrised matrix (one batch per
-        chunk of incident directions; NaN with fewer than 2 chunks).
+        chunk of incident directions; NaN with fewer than 2 chunks). With c chunks it has
+        c - 1 degrees of freedom: use 10 or more chunks (``simulate(chunk=...)`` counts
+        incident directions) before comparing in units of it.
     rays : int
         Incident rays traced.
     seconds : float

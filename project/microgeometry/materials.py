@@ -106,15 +106,16 @@ class MicroBRDF(Material):
     Notes
     -----
     Directional-diffuse scattering (Westin et al. 1992, sec. 4.3, eqs 23-24) with one
-    importance-sampled ray per event instead of n uniformly spread rays, and Russian
-    roulette instead of branching. The new direction is drawn from a mixture of the cosine
-    density and, for CookTorrance (Beckmann, GGX), Phong and BlinnPhong, a sampler of the
-    model's lobe; the path weight is multiplied by f cos(theta_o) / pdf. The estimator is
-    unbiased (the cosine part of the mixture keeps pdf > 0 wherever f > 0; roulette is
-    unbiased). Variance: pure cosine sampling (factor pi f) has a per-event variance of
-    order the lobe's peak value, ~ 1 / m^2 for a microfacet lobe of roughness m, so sharp
-    lobes without a sampler converge slowly; with the lobe sampler the factor stays near the
-    lobe's albedo. See :mod:`project.microgeometry.scatter` and
+    importance-sampled ray per event instead of n uniformly spread rays, and Russian roulette
+    instead of branching. The new direction is drawn from a mixture of the cosine density and,
+    for CookTorrance (Beckmann, GGX), Phong and BlinnPhong, a sampler of the model's lobe, or
+    the BRDF's own ``sample(wi, u)`` / ``pdf(wi, wo)`` when it has them (e.g.
+    :class:`project.MatrixBRDF`, a simulated BRDF used again); the path weight is multiplied by
+    f cos(theta_o) / pdf. The estimator is unbiased (the cosine part of the mixture keeps pdf >
+    0 wherever f > 0; roulette is unbiased). Variance: pure cosine sampling (factor pi f) has a
+    per-event variance of order the lobe's peak value, ~ 1 / m^2 for a microfacet lobe of
+    roughness m, so sharp lobes without a sampler converge slowly; with the lobe sampler the
+    factor stays near the lobe's albedo. See :mod:`project.microgeometry.scatter` and
     :mod:`project.microgeometry.wavefront` (the bounce-by-bounce tracer).
 
     Examples

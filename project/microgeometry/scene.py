@@ -1,14 +1,15 @@
 """Periodic scenes of meshes, cylinders and height fields, traced through one BVH.
 
-A :class:`Scene` is one period box [0, Lx) x [0, Ly) of a surface tiled in x and y, built
-from parts -- triangle meshes (:class:`~project.microgeometry.bvh.Mesh`), height fields
-(triangulated as by the height-field tracer), base planes and cylinders lying along x or y --
-each with its own facet material (:class:`Mirror`, :class:`Diffuse`, :class:`Dielectric` or
-:class:`MicroBRDF`). It is accepted by :func:`~project.microgeometry.simulate` in place of a
-:class:`Heightfield`; the path loop is the one of ``trace.py`` (same random streams, same
-start points, same Fresnel and roulette) with the max-pyramid walk replaced by the periodic
-BVH walk of ``bvh.py``. Scenes with MicroBRDF parts are traced bounce by bounce through the
-same BVH (``wavefront.py``; Mirror and Diffuse parts may be mixed in, Dielectric ones not).
+A :class:`Scene` is one period box [0, Lx) x [0, Ly) of a surface tiled in x and y, built from
+parts -- triangle meshes (:class:`~project.microgeometry.bvh.Mesh`), height fields
+(triangulated as by the height-field tracer), base planes, cylinders lying along x or y,
+spheres and finite (optionally capped) tubes in any direction -- each with its own facet
+material (:class:`Mirror`, :class:`Diffuse`, :class:`Dielectric` or :class:`MicroBRDF`). It is
+accepted by :func:`~project.microgeometry.simulate` in place of a :class:`Heightfield`; the
+path loop is the one of ``trace.py`` (same random streams, same start points, same Fresnel and
+roulette) with the max-pyramid walk replaced by the periodic BVH walk of ``bvh.py``. Scenes
+with MicroBRDF parts are traced bounce by bounce through the same BVH (``wavefront.py``; Mirror
+and Diffuse parts may be mixed in, Dielectric ones not).
 
 :func:`brushed_metal` builds the brushed-metal specimen: parallel cylinders on a base plane.
 """
@@ -264,7 +265,8 @@ class Scene:
         if self._bvh is None:
             if not self._parts:
                 raise ValueError("the scene must hold at least one part (add_mesh, "
-                                 "add_heightfield, add_plane, add_cylinder), got none")
+                                 "add_heightfield, add_plane, add_cylinder, add_sphere, "
+                                 "add_tube), got none")
             pt, pd, _ = self._packed()
             self._bvh = BVH(pt, pd, period=self.period)
         return self._bvh

@@ -18,7 +18,7 @@ from basis import HemiHarmonics
 from project import project
 from project.microgeometry import Diffuse, Mesh, MicroBRDF, Scene, simulate, trace, woven_cloth
 from project.models import Lambert, Phong, Ward
-from tests.project.test_scene import K_SIGMA, rotated_z, rotation_action
+from tests.project.mc import K_SIGMA, rotated_z, rotation_action
 
 S, R, H = 1.0, 0.25, 0.35  # spacing, radius, crimp (> radius: the threads clear each other)
 

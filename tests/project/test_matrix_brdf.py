@@ -26,7 +26,7 @@ from project import MatrixBRDF, project
 from project.microgeometry import Heightfield, MicroBRDF, brushed_metal, simulate, trace
 from project.microgeometry.scatter import FacetSampler
 from project.models import Lambert, Phong, Ward
-from tests.project.test_scene import K_SIGMA, rotation_action
+from tests.project.mc import K_SIGMA, rotation_action
 
 
 def _dir(theta_deg: float, phi_deg: float = 0.0) -> np.ndarray:

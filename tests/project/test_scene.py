@@ -23,9 +23,14 @@ from project.microgeometry import (
 )
 from project.microgeometry.bvh import BVH, CYLINDER, TRIANGLE, Mesh
 from project.models import fresnel
-
-K_SIGMA = 5.0
-
+from tests.project.mc import (
+    ALUMINIUM,
+    K_SIGMA,
+    assert_anisotropic_and_turns,
+    direction,
+    rotated_z,
+    rotation_action,
+)
 
 # -- brute-force references -------------------------------------------------------------------
 
@@ -235,34 +240,6 @@ def test_bvh_empty_scene_is_refused():
 
 # -- scenes -----------------------------------------------------------------------------------
 
-ALUMINIUM = Mirror(0.96, 6.69)  # n + i k of aluminium near 550 nm
-
-
-def _dir(theta_deg: float, phi_deg: float = 0.0) -> np.ndarray:
-    t, p = np.radians(theta_deg), np.radians(phi_deg)
-    return np.array([np.sin(t) * np.cos(p), np.sin(t) * np.sin(p), np.cos(t)])
-
-
-def rotation_action(basis):
-    """A with b(R^-1 w) = A b(w) for R the +90 degree turn about z, by least squares on
-    random directions; for 90 degrees cos(m (phi - pi/2)) and sin(...) are +-cos(m phi) or
-    +-sin(m phi), so A is a signed permutation (checked)."""
-    w = np.random.default_rng(5).normal(size=(400, 3))
-    w[:, 2] = np.abs(w[:, 2])
-    w /= np.linalg.norm(w, axis=1)[:, None]
-    rinv = np.stack([w[:, 1], -w[:, 0], w[:, 2]], 1)
-    at = np.linalg.lstsq(basis.eval(w), basis.eval(rinv), rcond=None)[0]
-    a = np.round(at.T)
-    np.testing.assert_allclose(at.T, a, rtol=0, atol=1e-10)
-    return a
-
-
-def rotated_z(res_a, res_b, a):
-    """max |M_b - A^T M_a A| in units of the combined standard error (A signed permutation,
-    so the standard errors map through |A|)."""
-    ma = a.T @ res_a.matrix.matrix @ a
-    sa = np.abs(a).T @ res_a.stderr @ np.abs(a)
-    return float(np.max(np.abs(res_b.matrix.matrix - ma) / np.hypot(sa, res_b.stderr)))
 
 
 def test_heightfield_in_scene_traces_like_the_height_field_tracer():
@@ -279,17 +256,17 @@ def test_heightfield_in_scene_traces_like_the_height_field_tracer():
 @pytest.mark.parametrize("theta", [0.0, 40.0, 80.0])
 def test_flat_fresnel_plane(theta):
     # n = 3: F >= 0.25 stays above the roulette threshold, so every weight is F exactly
-    p = trace(Scene((1.0, 2.0)).add_plane(0.3, material=Mirror(3.0)), _dir(theta, 30), 50)
+    p = trace(Scene((1.0, 2.0)).add_plane(0.3, material=Mirror(3.0)), direction(theta, 30), 50)
     f = float(fresnel(np.cos(np.radians(theta)), 3.0, 0.0))
     np.testing.assert_allclose(p.weights, f, rtol=1e-13)
-    np.testing.assert_allclose(p.directions, np.broadcast_to(_dir(theta, 210), (50, 3)),
+    np.testing.assert_allclose(p.directions, np.broadcast_to(direction(theta, 210), (50, 3)),
                                rtol=0, atol=1e-14)
 
 
 @pytest.mark.parametrize("theta", [0.0, 45.0, 85.0])
 def test_lossless_brushed_metal_albedo_is_one(theta):
     # F = 1: every ray must leave with weight exactly 1, upwards, after >= 1 bounce
-    p = trace(brushed_metal(0.5, 1.0), _dir(theta, 10), 20000, seed=3)
+    p = trace(brushed_metal(0.5, 1.0), direction(theta, 10), 20000, seed=3)
     assert p.lost.sum() == 0.0 and np.all(p.weights == 1.0)
     assert np.all(p.directions[:, 2] > 0) and np.all(p.bounces >= 1)
     assert np.max(p.bounces) >= 2  # the grooves between half cylinders trap some rays
@@ -319,7 +296,7 @@ def test_lossless_brushed_metal_matrix_albedo():
 @pytest.mark.parametrize("theta", [0.0, 60.0, 85.0])
 def test_aluminium_energy_closes(theta):
     # per ray, weight + absorbed = 1 except for roulette, which is unbiased
-    p = trace(brushed_metal(0.5, 1.0, material=ALUMINIUM), _dir(theta, 20), 20000, seed=4)
+    p = trace(brushed_metal(0.5, 1.0, material=ALUMINIUM), direction(theta, 20), 20000, seed=4)
     tot = p.weights + p.absorbed + p.lost
     assert p.lost.sum() == 0.0 and 0.8 < p.weights.mean() < 0.95
     assert abs(tot.mean() - 1.0) <= K_SIGMA * tot.std() / np.sqrt(tot.size) + 1e-14
@@ -328,7 +305,7 @@ def test_aluminium_energy_closes(theta):
 def test_diffuse_parts_conserve_energy():
     # lossless diffuse plane + mirror cylinders: albedo exactly 1 per ray
     s = Scene(1.0).add_plane(0.0, material=Diffuse(1.0)).add_cylinder("y", 0.5, 0.0, 0.3)
-    p = trace(s, _dir(50), 5000, seed=1)
+    p = trace(s, direction(50), 5000, seed=1)
     assert p.lost.sum() == 0.0 and np.all(p.weights == 1.0)
 
 
@@ -345,18 +322,7 @@ def brushed():
 
 
 def test_brushed_metal_is_anisotropic_and_rotates(brushed):
-    b, rx, ry, rrot = brushed
-    a = rotation_action(b)
-    # turning the geometry by 90 degrees turns the BRDF: M_y = A^T M_x A within k sigma
-    assert rotated_z(rx, ry, a) < K_SIGMA
-    assert rotated_z(rx, rrot, a) < K_SIGMA
-    # ... while the unrotated matrices differ by far more than the noise: anisotropic
-    assert np.max(np.abs(ry.matrix.matrix - rx.matrix.matrix)
-                  / np.hypot(ry.stderr, rx.stderr)) > 10 * K_SIGMA
-    # and entries coupling different azimuthal orders (zero for isotropic BRDFs) are large
-    m = np.abs(b.azimuthal)
-    off = m[:, None] != m[None, :]
-    assert np.max(np.abs(rx.matrix.matrix[off]) / rx.stderr[off]) > 10 * K_SIGMA
+    assert_anisotropic_and_turns(*brushed)
 
 
 def test_anisotropy_only_where_the_geometry_has_it():
@@ -417,10 +383,10 @@ def test_mesh_in_scene_from_obj(tmp_path):
     p = trace(s, [0.0, 0.0, 1.0], n, seed=1)
     assert np.all(p.bounces == 1) and np.all(p.weights == 1.0)
     left = p.directions[:, 0] < 0
-    np.testing.assert_allclose(p.directions[left], np.broadcast_to(_dir(20, 180),
+    np.testing.assert_allclose(p.directions[left], np.broadcast_to(direction(20, 180),
                                                                    (left.sum(), 3)),
                                rtol=0, atol=1e-12)
-    np.testing.assert_allclose(p.directions[~left], np.broadcast_to(_dir(20, 0),
+    np.testing.assert_allclose(p.directions[~left], np.broadcast_to(direction(20, 0),
                                                                     ((~left).sum(), 3)),
                                rtol=0, atol=1e-12)
     # binomial: sigma = sqrt(n / 4)

@@ -3,7 +3,7 @@ albedo, the flat-plane projection reference, agreement with the height-field wav
 with the path tracer, mixed materials, rough brushed aluminium (energy, anisotropy, rotation,
 blur), determinism across threads, bad input.
 
-Monte Carlo assertions use k = 5 standard errors (K_SIGMA of test_scene.py); seeds are fixed.
+Monte Carlo assertions use k = 5 standard errors (K_SIGMA of tests/project/mc.py); seeds are fixed.
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from project.microgeometry.scatter import facet_frame
 from project.microgeometry.trace import MAX_BOUNCES, MAX_STEPS, _alloc, _seed
 from project.microgeometry.wavefront import _frame, run_scene_wavefront
 from project.models import CookTorrance, GlossyPaint, Lambert
-from tests.project.test_scene import ALUMINIUM, K_SIGMA, _dir, rotated_z, rotation_action
+from tests.project.mc import ALUMINIUM, K_SIGMA, assert_anisotropic_and_turns, direction
 
 #: slightly rough aluminium: Beckmann RMS slope 0.2, n + i k = 0.96 + 6.69 i (550 nm)
 ROUGH_AL = CookTorrance(0.0, 0.2, ior=0.96, k=6.69)
@@ -53,7 +53,7 @@ def test_lossless_micro_lambert_scene_albedo_is_one(theta):
     mat = MicroBRDF(Lambert(1.0))
     s = (Scene(1.0).add_plane(0.0, material=mat)
          .add_cylinder("y", 0.5, 0.1, 0.3, material=mat))
-    p = trace(s, _dir(theta, 20), 5000, seed=1)
+    p = trace(s, direction(theta, 20), 5000, seed=1)
     assert p.lost.sum() == 0.0 and np.all(p.directions[:, 2] > 0)
     np.testing.assert_allclose(p.weights, 1.0, rtol=0, atol=1e-12)
     np.testing.assert_allclose(p.weights + p.absorbed + p.lost, 1.0, rtol=0, atol=1e-12)
@@ -84,8 +84,8 @@ def test_heightfield_in_scene_traces_like_the_height_field_wavefront():
     g = GaussianSurface(1.0, 6.5, resolution=32, seed=3, material=MicroBRDF(ROUGH_AL))
     s = Scene(g.period).add_heightfield(g)
     for theta in (0.0, 60.0, 85.0):
-        a = trace(g, _dir(theta, 30), 4000, seed=1)
-        b = trace(s, _dir(theta, 30), 4000, seed=1)
+        a = trace(g, direction(theta, 30), 4000, seed=1)
+        b = trace(s, direction(theta, 30), 4000, seed=1)
         same = (a.bounces == b.bounces) & (np.abs(a.weights - b.weights) < 1e-12)
         assert same.mean() >= 0.999
         np.testing.assert_allclose(b.directions[same], a.directions[same], rtol=0, atol=1e-12)
@@ -102,7 +102,7 @@ def test_micro_facets_facing_along_x():
     f = [[0, 1, 2], [0, 2, 3], [4, 6, 5], [4, 7, 6], [3, 2, 6], [3, 6, 7]]
     mat = MicroBRDF(Lambert(1.0))
     s = Scene(1.0).add_plane(0.0, material=mat).add_mesh(Mesh(v, f), material=mat)
-    p = trace(s, _dir(70, 0), 4000, seed=2)
+    p = trace(s, direction(70, 0), 4000, seed=2)
     assert np.all(np.isfinite(p.directions)) and p.lost.sum() == 0.0
     np.testing.assert_allclose(p.weights, 1.0, rtol=0, atol=1e-12)
     g = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [0.6, 0.0, 0.8]])
@@ -132,7 +132,7 @@ def test_wavefront_mirror_and_diffuse_facets_are_the_path_tracers():
     # bit-identical paths (Fresnel aluminium cylinders, a grey diffuse plane: roulette too)
     s = (Scene(1.0).add_plane(0.0, material=Diffuse(0.3))
          .add_cylinder("x", 0.5, 0.1, 0.35, material=ALUMINIUM))
-    wi = _dir(40, 30)
+    wi = direction(40, 30)
     p = trace(s, wi, 5000, seed=7)
     out = _wavefront_paths(s, wi, 5000, 7)
     for got, ref in zip(out, p, strict=True):
@@ -149,7 +149,7 @@ def test_mixed_micro_cylinders_and_diffuse_plane():
         return (Scene(1.0).add_plane(0.0, material=Diffuse(0.5))
                 .add_cylinder("y", 0.5, 0.1, 0.3, material=cyl))
 
-    wi = _dir(50, 10)
+    wi = direction(50, 10)
     m = trace(scene(MicroBRDF(Lambert(0.8))), wi, 20000, seed=3)
     d = trace(scene(Diffuse(0.8)), wi, 20000, seed=4)
     assert m.lost.sum() == 0.0
@@ -166,16 +166,16 @@ def test_micro_scene_deterministic_across_threads():
     # per-ray streams and no cross-ray reductions: bit-identical for 1 and 2 threads
     s = (Scene(1.0).add_plane(0.0, material=Diffuse(0.5))
          .add_cylinder("x", 0.5, 0.1, 0.35, material=MicroBRDF(ROUGH_AL)))
-    a = trace(s, _dir(60, 30), 4000, seed=5)
+    a = trace(s, direction(60, 30), 4000, seed=5)
     old = numba.get_num_threads()
     try:
         numba.set_num_threads(1)
-        b = trace(s, _dir(60, 30), 4000, seed=5)
+        b = trace(s, direction(60, 30), 4000, seed=5)
     finally:
         numba.set_num_threads(old)
     for x, y in zip(a, b, strict=True):
         np.testing.assert_array_equal(x, y)
-    assert not np.array_equal(a.weights, trace(s, _dir(60, 30), 4000, seed=6).weights)
+    assert not np.array_equal(a.weights, trace(s, direction(60, 30), 4000, seed=6).weights)
 
 
 # -- rough brushed aluminium ------------------------------------------------------------------
@@ -184,7 +184,7 @@ def test_micro_scene_deterministic_across_threads():
 def test_rough_brushed_aluminium_energy_closes(theta):
     # every facet event splits the weight into kept + absorbed; roulette is unbiased
     s = brushed_metal(0.4, 1.0, material=ALUMINIUM, roughness=0.2)
-    p = trace(s, _dir(theta, 20), 10000, seed=4)
+    p = trace(s, direction(theta, 20), 10000, seed=4)
     tot = p.weights + p.absorbed + p.lost
     assert p.lost.sum() == 0.0 and _mean_z(tot, 1.0) < K_SIGMA
     # aluminium reflects 0.92 at normal incidence; multiple bounces and the Smith loss of the
@@ -209,14 +209,7 @@ def rough_brushed():
 
 def test_rough_brushed_aluminium_is_anisotropic_and_rotates(rough_brushed):
     b, _, rx, ry, rrot = rough_brushed
-    a = rotation_action(b)
-    assert rotated_z(rx, ry, a) < K_SIGMA
-    assert rotated_z(rx, rrot, a) < K_SIGMA
-    assert np.max(np.abs(ry.matrix.matrix - rx.matrix.matrix)
-                  / np.hypot(ry.stderr, rx.stderr)) > 10 * K_SIGMA
-    m = np.abs(b.azimuthal)
-    off = m[:, None] != m[None, :]
-    assert np.max(np.abs(rx.matrix.matrix[off]) / rx.stderr[off]) > 10 * K_SIGMA
+    assert_anisotropic_and_turns(b, rx, ry, rrot)
 
 
 def test_roughening_blurs_brushed_aluminium(rough_brushed):

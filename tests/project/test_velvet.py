@@ -16,7 +16,7 @@ import pytest
 from basis import HemiHarmonics
 from project.microgeometry import Dielectric, Diffuse, Mirror, Scene, simulate, trace, velvet
 from project.microgeometry.trace import ROULETTE
-from tests.project.test_scene import K_SIGMA, rotated_z, rotation_action
+from tests.project.mc import K_SIGMA, rotated_z, rotation_action
 
 #: a black velvet in micrometres: fibres of radius 5 and length 300, 40 um apart on average,
 #: tilted up to 0.3 rad (17 degrees), dyed (sigma = 0.03 / um: 26 % lost across a diameter)
