@@ -14,9 +14,11 @@ radius r around a smooth centreline
 so at the crossing (x_i, y_j) the thread along x is at height (-1)^(i+j) h and the one
 along y at the opposite height: every thread passes alternately over and under the threads
 it crosses, and neighbouring threads are in opposite phase (a plain weave). The phase
-(sin rather than cos) puts the crests at the crossings. The weave is invariant under the
-90-degree turn (x, y) -> (2 s - y, x) of ``Scene.rotated``, which maps each family of
-threads onto the other.
+(sin rather than cos) puts the crests at the crossings. Every triangle carries its thread's
+direction (the centreline tangent) as the x axis of its facet frame, so the thread BRDF
+runs along the thread everywhere, on the sloping flanks and for both families. The weave,
+with those tangents, is invariant under the 90-degree turn (x, y) -> (2 s - y, x) of
+``Scene.rotated``, which maps each family of threads onto the other.
 """
 
 from __future__ import annotations
@@ -78,22 +80,23 @@ def woven_cloth(
     Returns
     -------
     Scene
-        Parts in this order: the threads along x (one mesh, material
-        ``MicroBRDF(MatrixBRDF(thread))``), the threads along y (one mesh, material
-        ``MicroBRDF(MatrixBRDF(thread.rotated(pi / 2)))``, the same object when the thread
-        is isotropic) and the base plane.
+        Parts in this order: the threads along x, the threads along y (one mesh each, one
+        shared material ``MicroBRDF(MatrixBRDF(thread))``, with per-triangle tangents) and
+        the base plane.
 
     Notes
     -----
-    Facet frames: a MicroBRDF facet's x axis is the mean plane's x projected onto the
-    facet, i.e. along the thread for threads along x and across it for threads along y;
-    the threads along y therefore scatter with the thread BRDF turned by 90 degrees
-    (:meth:`basis.CoefficientMatrix.rotated`), which puts its x axis along them.
+    Facet frames: every thread triangle's tangent (``Scene.add_mesh(tangents=...)``) is
+    the centreline tangent of its thread at the middle of its ring segment, so a MicroBRDF
+    facet's x axis is that direction projected onto the facet: along the thread for both
+    families, also on the sloping flanks, where the projected world x axis would tilt away
+    from the thread by up to atan(pi h / s). Both families therefore use the same
+    material.
 
-    ``Scene.rotated`` turns the geometry but not those frames, so it turns the cloth only
-    when the thread is isotropic. With an anisotropic thread the cloth itself is still
-    invariant under the 90-degree turn (the weave maps onto itself with each thread's BRDF
-    along it), which the simulated matrix shows.
+    ``Scene.rotated`` turns the tangents with the geometry, so it is a true rotation of the
+    cloth, for anisotropic threads too; and the square weave is invariant under the
+    90-degree turn (the weave maps onto itself with each thread's BRDF along it), which
+    the simulated matrix shows.
 
     Tubes: each thread is a swept tube whose rings lie in the planes normal to the
     centreline; the last ring of a period is the first one shifted by 2 s, so the surface
@@ -128,34 +131,31 @@ def woven_cloth(
     if base is None:
         base = Diffuse(0.05)
     zb = -(h + r) if base_height is None else _finite(base_height, "base_height")
-    xmat = MicroBRDF(MatrixBRDF(thread, negative=negative, tol=tol))
-    m = xmat.brdf.matrix
-    ymat = xmat if m.is_isotropic else MicroBRDF(
-        MatrixBRDF(m.rotated(0.5 * np.pi), negative=negative, tol=tol))
+    mat = MicroBRDF(MatrixBRDF(thread, negative=negative, tol=tol))
     along_x = [_tube("x", (j + 0.5) * s, (-1.0) ** j * h, s, r, segments, sides)
                for j in range(2)]
     along_y = [_tube("y", (i + 0.5) * s, -((-1.0) ** i) * h, s, r, segments, sides)
                for i in range(2)]
     scene = Scene((2.0 * s, 2.0 * s))
-    scene.add_mesh(_join(along_x), material=xmat)
-    scene.add_mesh(_join(along_y), material=ymat)
+    for family in (along_x, along_y):
+        mesh, tangents = _join(family)
+        scene.add_mesh(mesh, material=mat, tangents=tangents)
     return scene.add_plane(zb, material=base)
 
 
 def _tube(axis: str, position: float, amplitude: float, s: float, r: float, segments: int,
-          sides: int) -> tuple[NDArray, NDArray]:
-    """Vertices ((segments + 1) * sides, 3) and faces of one thread over one period."""
+          sides: int) -> tuple[NDArray, NDArray, NDArray]:
+    """Vertices ((segments + 1) * sides, 3), faces (2 segments sides, 3) and face tangents
+    (2 segments sides, 3) (the centreline's unit tangent at the middle of each face's ring
+    segment) of one thread over one period."""
     u = 2.0 * s * np.arange(segments + 1) / segments
     z = amplitude * np.sin(np.pi * u / s)
-    dz = amplitude * np.pi / s * np.cos(np.pi * u / s)
-    zero = np.zeros_like(u)
-    if axis == "x":
-        c = np.stack([u, np.full_like(u, position), z], -1)
-        t = np.stack([np.ones_like(u), zero, dz], -1)
-    else:
-        c = np.stack([np.full_like(u, position), u, z], -1)
-        t = np.stack([zero, np.ones_like(u), dz], -1)
+    c = _along(axis, u, position, z)
+    t = _along(axis, np.ones_like(u), 0.0, amplitude * np.pi / s * np.cos(np.pi * u / s))
     t /= np.linalg.norm(t, axis=1)[:, None]
+    um = u[:-1] + s / segments  # the middle of each ring segment
+    tm = _along(axis, np.ones_like(um), 0.0, amplitude * np.pi / s * np.cos(np.pi * um / s))
+    tm /= np.linalg.norm(tm, axis=1)[:, None]
     n1 = np.cross([0.0, 0.0, 1.0], t)  # horizontal, normal to the thread
     n1 /= np.linalg.norm(n1, axis=1)[:, None]
     n2 = np.cross(t, n1)  # (t, n1, n2) right-handed; n2 points up
@@ -173,16 +173,26 @@ def _tube(axis: str, position: float, amplitude: float, s: float, r: float, segm
     # (v00, v11, v10) and (v00, v01, v11): outward for increasing ring angle about t
     f = np.concatenate([np.stack([v00, v11, v10], -1).reshape(-1, 3),
                         np.stack([v00, v01, v11], -1).reshape(-1, 3)])
-    return v.reshape(-1, 3), f
+    # faces run segment-major in each half: face k sides + l lies in segment k
+    return v.reshape(-1, 3), f, np.tile(np.repeat(tm, sides, axis=0), (2, 1))
 
 
-def _join(parts: list[tuple[NDArray, NDArray]]) -> Mesh:
-    verts, faces, off = [], [], 0
-    for v, f in parts:
+def _along(axis: str, along: NDArray, across: float, z: NDArray) -> NDArray:
+    """(n, 3) points or vectors with components ``along`` the thread axis, ``across`` it
+    (horizontal) and ``z``."""
+    a = np.broadcast_to(along, z.shape)
+    b = np.full_like(z, across)
+    return np.stack([a, b, z] if axis == "x" else [b, a, z], -1)
+
+
+def _join(parts: list[tuple[NDArray, NDArray, NDArray]]) -> tuple[Mesh, NDArray]:
+    verts, faces, tangents, off = [], [], [], 0
+    for v, f, t in parts:
         verts.append(v)
         faces.append(f + off)
+        tangents.append(t)
         off += v.shape[0]
-    return Mesh(np.concatenate(verts), np.concatenate(faces))
+    return Mesh(np.concatenate(verts), np.concatenate(faces)), np.concatenate(tangents)
 
 
 def _finite(value: object, name: str) -> float:

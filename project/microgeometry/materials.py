@@ -90,7 +90,9 @@ class MicroBRDF(Material):
     ----------
     brdf : BRDF
         One channel, evaluated in the facet's local frame: z is the facet normal and x the
-        mean plane's x axis projected onto the facet (this orients anisotropic models).
+        mean plane's x axis projected onto the facet (this orients anisotropic models), or
+        on scene meshes given ``tangents`` (``Scene.add_mesh``) the triangle's tangent
+        projected onto it (e.g. along a thread).
         Ideal mirror (``delta``) terms are supported (chosen against the smooth part by
         their albedos at each event).
 

@@ -70,15 +70,45 @@ class Scene:
             raise ValueError(f"period must be finite and > 0, got {period!r}")
         self.period = p
         self._parts: list[tuple[str, NDArray, Material]] = []
+        # per part: (n, 3) unit x axes of the MicroBRDF facet frames, or None (world x)
+        self._tangents: list[NDArray | None] = []
         self._bvh: BVH | None = None
 
     # -- building -----------------------------------------------------------------------------
 
-    def add_mesh(self, mesh: Mesh, *, material: Material | None = None) -> Scene:
-        """Add the triangles of ``mesh`` (coordinates in the scene's frame); returns self."""
+    def add_mesh(self, mesh: Mesh, *, material: Material | None = None,
+                 tangents: ArrayLike | None = None) -> Scene:
+        """Add the triangles of ``mesh`` (coordinates in the scene's frame); returns self.
+
+        Parameters
+        ----------
+        mesh : Mesh
+            The triangles.
+        material : Material, optional
+            Of the triangles (default lossless :class:`Mirror`).
+        tangents : (F, 3) or (3,) array_like of float, optional
+            Direction of the x axis of the facet frame of a :class:`MicroBRDF` material,
+            per triangle (F = ``mesh.faces.shape[0]``) or one for all (finite, non-zero;
+            length irrelevant): on a hit the frame's x axis is this direction projected
+            onto the triangle, which orients anisotropic microscale BRDFs (e.g. along a
+            thread). None (default): the world x axis, as for every other part. Turned
+            with the scene by :meth:`rotated`; ignored by the other materials.
+
+        Examples
+        --------
+        A unit square whose microscale BRDF's x axis is the world y axis:
+
+        >>> m = Mesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]])
+        >>> Scene(1.0).add_mesh(m, tangents=[0.0, 1.0, 0.0])
+        Scene(period=[1.0, 1.0], triangles=2, cylinders=0)
+        """
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a Mesh, got {type(mesh).__name__}")
-        return self._add("triangles", mesh.triangles().reshape(-1, 9), material)
+        rows = mesh.triangles().reshape(-1, 9)
+        tan = None if tangents is None else _tangents(tangents, rows.shape[0])
+        self._add("triangles", rows, material)
+        self._tangents[-1] = tan
+        return self
 
     def add_heightfield(self, surface: Heightfield) -> Scene:
         """Add a height field (its period must equal the scene's), with its own material."""
@@ -210,15 +240,24 @@ class Scene:
                                       "supports Mirror, Diffuse and MicroBRDF parts); use "
                                       "Mirror or Diffuse parts next to Dielectric ones")
         self._parts.append((kind, np.array(rows, dtype=np.float64), material))
+        self._tangents.append(None)
         self._bvh = None
         return self
 
     # -- views --------------------------------------------------------------------------------
 
     def rotated(self) -> Scene:
-        """The scene turned by +90 degrees about z: (x, y) -> (Ly - y, x), period (Ly, Lx)."""
+        """The scene turned by +90 degrees about z: (x, y) -> (Ly - y, x), period (Ly, Lx).
+
+        Facet-frame tangents (``add_mesh``) turn with it, (x, y) -> (-y, x); parts without
+        them keep the world x axis as their frame's x, so anisotropic MicroBRDF facets turn
+        with the scene only where tangents were given (or the BRDF is isotropic).
+        """
         lx, ly = self.period
         out = Scene((ly, lx))
+        for tan in self._tangents:
+            out._tangents.append(None if tan is None else
+                                 np.stack([-tan[:, 1], tan[:, 0], tan[:, 2]], 1))
         for kind, rows, mat in self._parts:
             r = rows.copy()
             if kind == "triangles":
@@ -284,10 +323,13 @@ class Scene:
         """SHA-256 of the period, the parts and their materials (checkpoint identity)."""
         d = hashlib.sha256()
         d.update(self.period.tobytes())
-        for kind, rows, mat in self._parts:
+        for (kind, rows, mat), tan in zip(self._parts, self._tangents, strict=True):
             d.update(kind.encode())
             d.update(np.ascontiguousarray(rows).tobytes())
             d.update(repr(mat).encode())
+            if tan is not None:  # scenes without tangents keep their fingerprints
+                d.update(b"tangents")
+                d.update(np.ascontiguousarray(tan).tobytes())
         return d.hexdigest()
 
     def __repr__(self) -> str:
@@ -312,8 +354,15 @@ class Scene:
                 if j == len(materials):
                     materials.append(mat)
                 slot.append(np.full(rows.shape[0], j, np.int64))
+            tangents = None
+            if any(t is not None for t in self._tangents):
+                tangents = np.concatenate([
+                    np.tile([1.0, 0.0, 0.0], (rows.shape[0], 1)) if t is None else t
+                    for (_, rows, _), t in zip(self._parts, self._tangents, strict=True)])
+                tangents = np.ascontiguousarray(tangents[bvh.source])
             run_scene_wavefront(bvh, self.period, materials, np.concatenate(slot)[bvh.source],
-                                dirs, per, seed, start, out, max_bounces, max_steps)
+                                dirs, per, seed, start, out, max_bounces, max_steps,
+                                tangents=tangents)
             return
         _, _, mats = self._packed()
         mats = np.ascontiguousarray(mats[bvh.source])  # per stored primitive
@@ -427,6 +476,25 @@ def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:
         raise ValueError(f"{name} must be finite: {bad.size} of {p.shape[0]} points are NaN "
                          f"or inf (first: {p[bad[0]].tolist()})")
     return p
+
+
+def _tangents(value: ArrayLike, n: int) -> NDArray[np.float64]:
+    # (n, 3) unit vectors from one direction (3,) or one per triangle (n, 3)
+    try:
+        t = np.array(value, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise TypeError(f"tangents must be a direction (3,) or {n} directions (n, 3) of "
+                        f"floats, got {value!r}") from None
+    if t.shape not in ((3,), (n, 3)):
+        raise ValueError(f"tangents must have shape (3,) or ({n}, 3) (one per triangle), got "
+                         f"shape {t.shape}")
+    t = np.broadcast_to(t.reshape(-1, 3), (n, 3))
+    norm = np.linalg.norm(t, axis=1)
+    bad = np.flatnonzero(~(np.isfinite(norm) & (norm > 0)))
+    if bad.size:
+        raise ValueError(f"tangents must be finite and non-zero: {bad.size} of {n} are not "
+                         f"(first: triangle {bad[0]}, {t[bad[0]].tolist()})")
+    return t / norm[:, None]
 
 
 def _radii(value: ArrayLike, n: int) -> NDArray[np.float64]:

@@ -29,7 +29,10 @@ or chunking.
 Facet frames: x is the world x axis projected onto the facet (``scatter.facet_frame``), so
 anisotropic microscale BRDFs keep their x axis along the mean plane's x; on facets whose
 normal is (anti)parallel to x (walls of meshes, sides of cylinders along y) that projection
-vanishes and the world y axis projected onto the facet is used instead.
+vanishes and the world y axis projected onto the facet is used instead. Scene meshes may
+give every triangle its own tangent (``Scene.add_mesh(tangents=...)``, e.g. along a
+thread): then x is that tangent projected onto the facet, with the same fallback where the
+projection vanishes.
 """
 
 from __future__ import annotations
@@ -71,7 +74,7 @@ def run_wavefront(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64
     sx, sy = surface.spacing
     hmin, hmax = float(h.min()), float(h.max())
 
-    def step(act, o, d, w, nb, lost, status, g, mid, front):
+    def step(act, o, d, w, nb, lost, status, g, mid, front, prim):
         # one material (mid = 0), every facet seen from above (front = True): untouched
         _step_kernel(act, o, d, w, nb, lost, h, surface._pyramid, surface._offsets,
                      surface._levels, sx, sy, hmin, hmax, max_bounces, max_steps, status, g)
@@ -82,36 +85,42 @@ def run_wavefront(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64
 
 def run_scene_wavefront(bvh: BVH, period: NDArray, materials: Sequence[Material], slot: NDArray,
                         dirs: NDArray, per: int, seed: np.uint64, start: int, out: tuple,
-                        max_bounces: int, max_steps: int) -> None:
+                        max_bounces: int, max_steps: int, *,
+                        tangents: NDArray | None = None) -> None:
     """Fill ``out`` like ``scene._scene_kernel`` for a scene with MicroBRDF parts.
 
     ``bvh`` is the scene's periodic :class:`~project.microgeometry.BVH`, ``materials`` the
     distinct materials of its parts (Mirror, Diffuse or MicroBRDF) and ``slot`` (P,) int64
     the index into ``materials`` of every stored primitive (``bvh.pdata`` row).
+    ``tangents`` (P, 3) unit vectors, optional: the x axis of the MicroBRDF facet frame of
+    every stored primitive before projection onto the facet (None: the world x axis).
     """
     lx, ly = float(period[0]), float(period[1])
     zmin, zmax = float(bvh.lo[0, 2]), float(bvh.hi[0, 2])
     slot = np.ascontiguousarray(slot, dtype=np.int64)
 
-    def step(act, o, d, w, nb, lost, status, g, mid, front):
+    def step(act, o, d, w, nb, lost, status, g, mid, front, prim):
         _scene_step_kernel(act, o, d, w, nb, lost, lx, ly, zmin, zmax, bvh.lo, bvh.hi,
                            bvh.link, bvh.ptype, bvh.pdata, slot, max_bounces, max_steps,
-                           status, g, mid, front)
+                           status, g, mid, front, prim)
 
     # the start height of scene._scene_kernel
     _bounces(step, materials, zmax + 1e-6 * (zmax - zmin + lx), lx, ly, dirs, per, seed,
-             start, out)
+             start, out, tangents)
 
 
 def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float, ly: float,
-             dirs: NDArray, per: int, seed: np.uint64, start: int, out: tuple) -> None:
+             dirs: NDArray, per: int, seed: np.uint64, start: int, out: tuple,
+             tangents: NDArray | None = None) -> None:
     """The bounce loop shared by height fields and scenes (see the module docstring).
 
-    ``step(act, o, d, w, nb, lost, status, g, mid, front)`` advances the live rays ``act`` to
-    their next facet: it writes ``status`` (hit, escaped, lost) per row of ``act``, and for
-    hits the facet normal ``g`` (facing the ray), the material index ``mid`` into
-    ``materials`` and ``front`` (the ray arrived on the primitive's outer side); it moves hit
-    origins and cuts off rays (weight to ``lost``) as the path tracers do.
+    ``step(act, o, d, w, nb, lost, status, g, mid, front, prim)`` advances the live rays
+    ``act`` to their next facet: it writes ``status`` (hit, escaped, lost) per row of
+    ``act``, and for hits the facet normal ``g`` (facing the ray), the material index
+    ``mid`` into ``materials``, ``front`` (the ray arrived on the primitive's outer side)
+    and, for scenes, the stored primitive ``prim`` (indexing ``tangents``, (P, 3) or None:
+    world x); it moves hit origins and cuts off rays (weight to ``lost``) as the path
+    tracers do.
     """
     n = dirs.shape[0] * per
     o = np.empty((n, 3))
@@ -126,6 +135,7 @@ def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float
     g = np.empty((n, 3))
     mid = np.zeros(n, np.int64)
     front = np.ones(n, np.bool_)
+    prim = np.zeros(n, np.int64)
     table = np.array([[float(m.code), *m._params()] for m in materials])  # (K, 4) for numba
     micro = [j for j, m in enumerate(materials) if m.code == MICRO]
     plain = np.array([m.code in (MIRROR, DIFFUSE) for m in materials])
@@ -135,7 +145,7 @@ def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float
                                   f"Mirror, Diffuse and MicroBRDF facets, got {other[0]!r}")
     act = np.arange(n, dtype=np.int64)
     while act.size:
-        step(act, o, d, w, nb, lost, status, g, mid, front)
+        step(act, o, d, w, nb, lost, status, g, mid, front, prim)
         hit = act[status[act] == _HIT]
         if hit.size == 0:
             break
@@ -146,7 +156,8 @@ def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float
         for j in micro:
             rows = hit if len(materials) == 1 else hit[mid[hit] == j]
             if rows.size:
-                _micro_event(materials[j]._sampler, rows, d, g, w, absorbed, s)
+                tan = None if tangents is None else tangents[prim[rows]]
+                _micro_event(materials[j]._sampler, rows, d, g, w, absorbed, s, tan)
         act = hit[w[hit] > 0.0]
     dead = ~(w > 0.0)
     d[dead] = (0.0, 0.0, 1.0)
@@ -158,10 +169,12 @@ def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float
 
 
 def _micro_event(sampler: FacetSampler, rows: NDArray, d: NDArray, g: NDArray, w: NDArray,
-                 absorbed: NDArray, s: NDArray) -> None:
-    """One MicroBRDF event for the rays ``rows`` (directions, weights, streams updated)."""
+                 absorbed: NDArray, s: NDArray, tangents: NDArray | None = None) -> None:
+    """One MicroBRDF event for the rays ``rows`` (directions, weights, streams updated);
+    ``tangents`` (len(rows), 3) unit x axes of the facet frames before projection, or
+    None (world x)."""
     gh = g[rows]
-    t, b = _frame(gh)
+    t, b = _frame(gh) if tangents is None else _tangent_frame(gh, tangents)
     wi = -d[rows]
     # g faces the ray, so w_i . g >= 0 up to rounding
     wl = np.stack([np.sum(wi * t, 1), np.sum(wi * b, 1), np.maximum(np.sum(wi * gh, 1), 0.0)],
@@ -192,6 +205,21 @@ def _frame(g: NDArray) -> tuple[NDArray, NDArray]:
     ts /= np.linalg.norm(ts, axis=1)[:, None]
     t[side] = ts
     b[side] = np.cross(gs, ts)
+    return t, b
+
+
+def _tangent_frame(g: NDArray, a: NDArray) -> tuple[NDArray, NDArray]:
+    """(t, b) with t the unit tangents ``a`` projected onto the facets of normals ``g``,
+    falling back to :func:`_frame` where that projection vanishes (|a . g| > _SIDE);
+    (t, b, g) right-handed, shapes (n, 3). For a = world x this is :func:`_frame` exactly
+    (the same operations in the same order)."""
+    ag = np.sum(a * g, 1)
+    side = np.abs(ag) > _SIDE
+    t = a - ag[:, None] * g
+    t /= np.where(side, 1.0, np.linalg.norm(t, axis=1))[:, None]
+    b = np.cross(g, t)
+    if side.any():
+        t[side], b[side] = _frame(g[side])
     return t, b
 
 
@@ -257,10 +285,10 @@ def _step_kernel(act, o, d, w, nb, lost, h, pyr, offs, top, sx, sy, hmin, hmax, 
 
 @pjit
 def _scene_step_kernel(act, o, d, w, nb, lost, lx, ly, zmin, zmax, lo, hi, link, ptype, pdata,
-                       slot, max_bounces, max_steps, status, g, mid, front):
+                       slot, max_bounces, max_steps, status, g, mid, front, prim):
     # As _step_kernel with the periodic BVH walk (bvh._periodic_hit); slot (P,) material
     # index of each stored primitive; mid (n,) out: material index of each hit, front (n,)
-    # out: the ray arrived on the primitive's outer side.
+    # out: the ray arrived on the primitive's outer side, prim (n,) out: stored primitive.
     eps = 1e-7 * min(lx, ly)  # the offset of scene._scene_kernel
     for a in prange(act.shape[0]):
         r = act[a]
@@ -271,6 +299,7 @@ def _scene_step_kernel(act, o, d, w, nb, lost, lx, ly, zmin, zmax, lo, hi, link,
                    status, g):
             mid[r] = slot[k]
             front[r] = fr
+            prim[r] = k
 
 
 @pjit
