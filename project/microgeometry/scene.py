@@ -278,25 +278,28 @@ class Scene:
             out._parts.append((kind, r, mat))
         return out
 
+    def _count(self, kind: str) -> int:
+        return sum(r.shape[0] for k, r, _ in self._parts if k == kind)
+
     @property
     def triangles(self) -> int:
         """Triangles per period (before periodic copies)."""
-        return sum(r.shape[0] for k, r, _ in self._parts if k == "triangles")
+        return self._count("triangles")
 
     @property
     def cylinders(self) -> int:
         """Cylinders per period."""
-        return sum(r.shape[0] for k, r, _ in self._parts if k == "cylinder")
+        return self._count("cylinder")
 
     @property
     def spheres(self) -> int:
         """Spheres per period."""
-        return sum(r.shape[0] for k, r, _ in self._parts if k == "sphere")
+        return self._count("sphere")
 
     @property
     def tubes(self) -> int:
         """Finite cylinders (:meth:`add_tube`) per period."""
-        return sum(r.shape[0] for k, r, _ in self._parts if k == "tube")
+        return self._count("tube")
 
     @property
     def bvh(self) -> BVH:
