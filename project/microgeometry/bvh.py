@@ -49,6 +49,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from basis._jit import njit, pjit, prange
 
+from .trace import _grid_step
+
 __all__ = ["BVH", "Mesh"]
 
 TRIANGLE, CYLINDER, SPHERE, TUBE = 0, 1, 2, 3
@@ -946,31 +948,8 @@ def _periodic_hit(ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi,
             return _ESCAPED, t, 0.0, 0.0, 0.0, -1, True
         if dz < 0.0 and z < zmin - tol:
             return _LOST, t, 0.0, 0.0, 0.0, -1, True
-        px = ox + t * dx
-        py = oy + t * dy
-        ix = int(np.floor(px / lx))
-        iy = int(np.floor(py / ly))
-        # on a cell boundary, take the cell the ray is entering
-        if dx > 0.0:
-            if (ix + 1) * lx - px <= 1e-12 * lx:
-                ix += 1
-            tx = ((ix + 1) * lx - ox) / dx
-        elif dx < 0.0:
-            if px - ix * lx <= 1e-12 * lx:
-                ix -= 1
-            tx = (ix * lx - ox) / dx
-        else:
-            tx = np.inf
-        if dy > 0.0:
-            if (iy + 1) * ly - py <= 1e-12 * ly:
-                iy += 1
-            ty = ((iy + 1) * ly - oy) / dy
-        elif dy < 0.0:
-            if py - iy * ly <= 1e-12 * ly:
-                iy -= 1
-            ty = (iy * ly - oy) / dy
-        else:
-            ty = np.inf
+        ix, tx = _grid_step(ox, dx, ox + t * dx, lx, 1e-12)
+        iy, ty = _grid_step(oy, dy, oy + t * dy, ly, 1e-12)
         t1 = min(tx, ty)
         if dz < 0.0:
             t1 = min(t1, (zmin - 2.0 * tol - oz) / dz)

@@ -287,6 +287,24 @@ def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
     return False, 0.0, 0.0, 0.0, 1.0
 
 
+@njit(inline="always")
+def _grid_step(o, d, p, size, tol):
+    """Along one axis of a grid of cells of width ``size``: the cell index of the ray
+    (origin o, direction d) at its position p, and the distance t at which it leaves that
+    cell. On a cell boundary (within tol * size) the cell it is entering is taken, else the
+    walk would make zero-length steps."""
+    i = int(np.floor(p / size))
+    if d > 0.0:
+        if (i + 1) * size - p <= tol * size:
+            i += 1
+        return i, ((i + 1) * size - o) / d
+    if d < 0.0:
+        if p - i * size <= tol * size:
+            i -= 1
+        return i, (i * size - o) / d
+    return i, np.inf
+
+
 @njit
 def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, max_steps):
     # Walk the max pyramid from t = 0; returns (status, t, normal x, y, z).
@@ -300,34 +318,9 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
             return _ESCAPED, t, 0.0, 0.0, 0.0
         if dz < 0.0 and z < hmin - tol:
             return _LOST, t, 0.0, 0.0, 0.0  # passed through the surface (rounding)
-        px = ox + t * dx
-        py = oy + t * dy
         scale = float(1 << lev)
-        cw = sx * scale
-        ch = sy * scale
-        ix = int(np.floor(px / cw))
-        iy = int(np.floor(py / ch))
-        # on a node boundary, take the node the ray is entering (else zero-length steps)
-        if dx > 0.0:
-            if (ix + 1) * cw - px <= 1e-9 * cw:
-                ix += 1
-            tx = ((ix + 1) * cw - ox) / dx
-        elif dx < 0.0:
-            if px - ix * cw <= 1e-9 * cw:
-                ix -= 1
-            tx = (ix * cw - ox) / dx
-        else:
-            tx = np.inf
-        if dy > 0.0:
-            if (iy + 1) * ch - py <= 1e-9 * ch:
-                iy += 1
-            ty = ((iy + 1) * ch - oy) / dy
-        elif dy < 0.0:
-            if py - iy * ch <= 1e-9 * ch:
-                iy -= 1
-            ty = (iy * ch - oy) / dy
-        else:
-            ty = np.inf
+        ix, tx = _grid_step(ox, dx, ox + t * dx, sx * scale, 1e-9)
+        iy, ty = _grid_step(oy, dy, oy + t * dy, sy * scale, 1e-9)
         t1 = min(tx, ty)
         # never step past the slab [hmin, hmax] (vertical rays have tx = ty = inf)
         if dz < 0.0:
