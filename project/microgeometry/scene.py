@@ -32,6 +32,7 @@ from .trace import (
     _attenuate,
     _dielectric,
     _launch,
+    _next_origin,
     _scatter,
     _store_path,
     _stream,
@@ -580,10 +581,6 @@ def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptyp
                                                       gx, gy, gz, front, w, absorbed, rr, s)
             if w == 0.0:
                 break
-            ox = px + side * gx
-            oy = py + side * gy
-            oz = pz + side * gz
-            ox -= np.floor(ox / lx) * lx
-            oy -= np.floor(oy / ly) * ly
+            ox, oy, oz = _next_origin(px, py, pz, side, gx, gy, gz, lx, ly)
         _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b,
                     out_abs, out_lost)

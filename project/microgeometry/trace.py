@@ -449,6 +449,17 @@ def _attenuate(sigma, t, w, absorbed):
 
 
 @njit(inline="always")
+def _next_origin(px, py, pz, side, gx, gy, gz, lx, ly):
+    """Origin of the next segment: the hit point moved by ``side`` along the facet normal g
+    (positive: the side the normal faces) and wrapped into the period [0, lx) x [0, ly)."""
+    ox = px + side * gx
+    oy = py + side * gy
+    ox -= np.floor(ox / lx) * lx
+    oy -= np.floor(oy / ly) * ly
+    return ox, oy, pz + side * gz
+
+
+@njit(inline="always")
 def _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b, out_abs,
                 out_lost):
     """Write ray r's exit (direction, or +z for a dead ray), weight and bookkeeping."""
@@ -504,10 +515,6 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
                                                   True, w, absorbed, rr, s)
             if w == 0.0:
                 break
-            ox = px + eps * gx
-            oy = py + eps * gy
-            oz = pz + eps * gz
-            ox -= np.floor(ox / lx) * lx
-            oy -= np.floor(oy / ly) * ly
+            ox, oy, oz = _next_origin(px, py, pz, eps, gx, gy, gz, lx, ly)
         _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b,
                     out_abs, out_lost)

@@ -56,6 +56,7 @@ from .trace import (
     ROULETTE,
     _intersect,
     _launch,
+    _next_origin,
     _scatter,
     _stream,
     _uniform,
@@ -254,11 +255,8 @@ def _record(r, code, t, gx, gy, gz, eps, lx, ly, o, d, w, nb, lost, max_bounces,
         return False
     status[r] = _HIT
     nb[r] += 1
-    px = o[r, 0] + t * d[r, 0] + eps * gx
-    py = o[r, 1] + t * d[r, 1] + eps * gy
-    o[r, 0] = px - np.floor(px / lx) * lx
-    o[r, 1] = py - np.floor(py / ly) * ly
-    o[r, 2] = o[r, 2] + t * d[r, 2] + eps * gz
+    o[r, 0], o[r, 1], o[r, 2] = _next_origin(o[r, 0] + t * d[r, 0], o[r, 1] + t * d[r, 1],
+                                             o[r, 2] + t * d[r, 2], eps, gx, gy, gz, lx, ly)
     g[r, 0] = gx
     g[r, 1] = gy
     g[r, 2] = gz
