@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validate import as_directions, check_bytes, nonneg_int
+from .validation import as_directions, check_bytes, nonneg_int
 
 
 class Basis:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validate import as_directions
+from .validation import as_directions
 
 __all__ = ["from_angles", "from_rusinkiewicz", "to_angles", "to_rusinkiewicz"]
 

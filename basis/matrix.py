@@ -12,8 +12,8 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis
-from ._validate import as_directions, check_bytes, choice
-from .modes import HelmholtzModes, broadcast_batch
+from .modes import HelmholtzModes
+from .validation import as_directions, broadcast_batch, check_bytes, choice
 from .zernike import HemiZernike
 
 __all__ = ["CoefficientMatrix", "QUANTITIES"]

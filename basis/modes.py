@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from ._validate import as_directions, check_bytes, nonneg_int
+from .validation import as_directions, broadcast_batch, check_bytes, nonneg_int
 from .zernike import HemiZernike
 
 _R2 = float(np.sqrt(2.0))
@@ -184,12 +184,3 @@ class HelmholtzModes:
 def _zernike_position(n: NDArray, l: NDArray) -> NDArray[np.int64]:
     """Flat index of K_n^l (signed l) in HemiZernike: n(n+1)/2 + (n + l)/2."""
     return (n * (n + 1) // 2 + (n + l) // 2).astype(np.int64)
-
-
-def broadcast_batch(wi: NDArray, wo: NDArray) -> tuple[int, ...]:
-    """Broadcast batch shape of two (..., 3) direction arrays, or a clear ValueError."""
-    try:
-        return tuple(np.broadcast_shapes(wi.shape[:-1], wo.shape[:-1]))
-    except ValueError:
-        raise ValueError(f"wi and wo must have broadcastable batch shapes, got {wi.shape} and "
-                         f"{wo.shape}") from None

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.special import roots_legendre
 
-from ._validate import nonneg_int
+from .validation import nonneg_int
 
 __all__ = ["HemisphereRule", "hemisphere_rule", "sphere_rule"]
 

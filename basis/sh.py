@@ -11,9 +11,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis, triangular_offsets
-from ._jit import njit, pjit, prange
-from ._validate import choice
+from .jit import njit, pjit, prange
 from .quadrature import HemisphereRule, hemisphere_rule, sphere_rule
+from .validation import choice
 
 # Values are carried as mantissa * 2**exponent while they would underflow float64: sin(theta)^m
 # reaches 1e-308 for sin(theta) = m/l near the turning point once l is above about 1900, while

@@ -12,9 +12,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis
-from ._jit import njit, pjit, prange
-from ._validate import nonneg_int
+from .jit import njit, pjit, prange
 from .quadrature import HemisphereRule, hemisphere_rule
+from .validation import nonneg_int
 
 _INV_SQRT2 = float(1.0 / np.sqrt(2.0))
 

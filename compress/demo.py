@@ -14,8 +14,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 import basis
-
-from ._io import atomic_path
+from project.io import atomic_path
 
 
 def orthonormality_error(b: basis.Basis) -> float:

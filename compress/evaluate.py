@@ -36,9 +36,8 @@ from numpy.typing import ArrayLike, NDArray
 
 import basis
 from basis import CoefficientMatrix
-from basis._jit import pjit, prange
-from basis._validate import as_directions
-from basis.modes import broadcast_batch
+from basis.jit import pjit, prange
+from basis.validation import as_directions, broadcast_batch
 from project import radial_table
 
 __all__ = ["FastEvaluator", "evaluate"]

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from basis import CoefficientMatrix
-from basis._validate import as_directions
+from basis.validation import as_directions
 
 from .evaluate import FastEvaluator
 

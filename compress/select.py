@@ -33,7 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 import basis
 import project
 from basis import CoefficientMatrix
-from basis._validate import as_directions, nonneg_int
+from basis.validation import as_directions, nonneg_int
 
 from .study import MAX_THETA, METRICS, NODES, errors, eval_ns, make_basis, reference_samples
 from .truncate import lowrank, truncate, unique_coefficients

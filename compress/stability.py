@@ -37,9 +37,9 @@ from numpy.typing import NDArray
 
 import basis
 import project
-from basis._validate import nonneg_int
+from basis.validation import nonneg_int
+from project.io import atomic_path
 
-from ._io import atomic_path
 from .evaluate import evaluate
 from .study import isotropic_pairs, make_basis
 from .truncate import SMOOTHING, ringing, smooth

@@ -62,8 +62,7 @@ from numpy.typing import NDArray
 
 import basis
 from basis import CoefficientMatrix
-
-from ._io import atomic_path
+from project.io import atomic_path
 
 __all__ = ["FORMAT", "READABLE_VERSIONS", "SCHEMA_VERSION", "load", "save"]
 

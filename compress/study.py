@@ -50,9 +50,9 @@ from numpy.typing import ArrayLike, NDArray
 import basis
 import project
 from basis import CoefficientMatrix
-from basis._validate import nonneg_int
+from basis.validation import nonneg_int
+from project.io import atomic_path
 
-from ._io import atomic_path
 from .evaluate import FastEvaluator
 from .truncate import smooth as _smooth
 from .truncate import unique_coefficients

@@ -26,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from basis import CoefficientMatrix
-from basis._validate import choice, nonneg_int
+from basis.validation import choice, nonneg_int
 
 from .evaluate import evaluate
 

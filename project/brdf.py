@@ -13,9 +13,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis._validate import as_directions, check_bytes
-from basis.modes import broadcast_batch
 from basis.quadrature import hemisphere_rule
+from basis.validation import as_directions, broadcast_batch, check_bytes
 
 __all__ = ["BRDF", "MirrorDelta", "as_color", "broadcast_channels"]
 

@@ -24,7 +24,7 @@ import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
 from basis import QUANTITIES, Basis, CoefficientMatrix, from_angles
-from basis._validate import as_directions, check_bytes, choice, nonneg_int
+from basis.validation import as_directions, check_bytes, choice, nonneg_int
 
 __all__ = [
     "COND_WARN",
@@ -273,7 +273,7 @@ def fit(
         Bad shapes, non-finite values, negative weights, directions below the horizon, or
         fewer samples than unknowns without regularization.
     MemoryError
-        If the design matrix and its SVD would exceed ``basis._validate.MAX_BYTES``.
+        If the design matrix and its SVD would exceed ``basis.validation.MAX_BYTES``.
 
     Warns
     -----

@@ -38,7 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from basis import CoefficientMatrix
-from basis._validate import as_directions, choice, nonneg_int
+from basis.validation import as_directions, choice, nonneg_int
 
 from .brdf import BRDF
 

@@ -98,12 +98,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
-from basis._jit import pjit, prange
-from basis._validate import choice
 from basis.directions import from_rusinkiewicz
+from basis.jit import pjit, prange
+from basis.validation import choice
 
-from ._io import atomic_path
 from .brdf import BRDF
+from .io import atomic_path
 
 __all__ = [
     "MERL_BYTES",

@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.special import erfc, erfcx
 
-from basis._validate import choice
+from basis.validation import choice
 
 from .brdf import BRDF, MirrorDelta, as_color, broadcast_channels
 

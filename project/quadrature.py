@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 from scipy.special import roots_legendre
 
 from basis import Basis, CoefficientMatrix
-from basis._validate import check_bytes, choice, nonneg_int
+from basis.validation import check_bytes, choice, nonneg_int
 
 __all__ = ["project", "radial_table"]
 

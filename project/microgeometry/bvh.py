@@ -47,7 +47,7 @@ import os
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis._jit import njit, pjit, prange
+from basis.jit import njit, pjit, prange
 
 from .trace import _grid_step
 

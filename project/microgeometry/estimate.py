@@ -29,9 +29,9 @@ from typing import Any
 import numpy as np
 
 from basis import Basis, CoefficientMatrix
-from basis._jit import pjit, prange
+from basis.jit import pjit, prange
 
-from .._io import atomic_path
+from ..io import atomic_path
 from .scene import Scene
 from .surface import Heightfield
 from .trace import MAX_BOUNCES, MAX_STEPS, _alloc, _positive_int, _run, _seed, incident_directions

@@ -21,7 +21,7 @@ import hashlib
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis._jit import pjit, prange
+from basis.jit import pjit, prange
 
 from .bvh import _HIT, _LOST, BVH, CYLINDER, SPHERE, TRIANGLE, TUBE, Mesh, _periodic_hit
 from .materials import DIELECTRIC, MICRO, Material, Mirror

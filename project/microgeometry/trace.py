@@ -19,8 +19,8 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis._jit import njit, pjit, prange
-from basis._validate import as_directions
+from basis.jit import njit, pjit, prange
+from basis.validation import as_directions
 
 from .materials import MICRO, MIRROR
 from .surface import Heightfield

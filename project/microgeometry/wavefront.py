@@ -42,7 +42,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from basis._jit import njit, pjit, prange
+from basis.jit import njit, pjit, prange
 
 from .bvh import BVH, _periodic_hit
 from .materials import DIFFUSE, MICRO, MIRROR, Material

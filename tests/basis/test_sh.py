@@ -12,7 +12,7 @@ import numpy as np
 import pyshtools
 import pytest
 
-import basis._validate as validate
+import basis.validation as validate
 from basis import HemiHarmonics, SphericalHarmonics, hemisphere_rule, sphere_rule
 
 EPS = float(np.finfo(np.float64).eps)
@@ -647,5 +647,5 @@ def test_allocation_limit(make, monkeypatch, unit_vectors):
     monkeypatch.setattr(validate, "MAX_BYTES", 8 * 10 * b.size)
     assert b.eval(d[:10]).shape == (10, b.size)
     with pytest.raises(MemoryError, match=r"would need .* GiB, more than the limit of .* GiB "
-                                          r"\(basis\._validate\.MAX_BYTES\); use a lower order"):
+                                          r"\(basis\.validation\.MAX_BYTES\); use a lower order"):
         b.eval(d)

@@ -11,7 +11,7 @@ import mpmath
 import numpy as np
 import pytest
 
-import basis._validate as validate
+import basis.validation as validate
 from basis import HemiZernike, zernike_radial
 
 EPS = float(np.finfo(np.float64).eps)
@@ -416,7 +416,7 @@ def test_allocation_limit(monkeypatch, unit_vectors):
     monkeypatch.setattr(validate, "MAX_BYTES", 8 * 10 * zb.size)
     assert zb.eval(d[:10]).shape == (10, zb.size)
     with pytest.raises(MemoryError, match=r"evaluating HemiZernike\(3\) at 11 directions would "
-                                          r"need .* \(basis\._validate\.MAX_BYTES\)"):
+                                          r"need .* \(basis\.validation\.MAX_BYTES\)"):
         zb.eval(d)
     with pytest.raises(MemoryError, match=r"MAX_BYTES"):
         HemiZernike(40).moments("cos")  # moments evaluate on a rule: the same guard applies

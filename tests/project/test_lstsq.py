@@ -435,7 +435,7 @@ def test_fit_input_errors(unit_vectors, monkeypatch):
         args = dict(wi=wi, wo=wo, values=v, basis=zb) | kw
         with pytest.raises(exc, match=match):
             fit(args.pop("wi"), args.pop("wo"), args.pop("values"), args.pop("basis"), **args)
-    monkeypatch.setattr("basis._validate.MAX_BYTES", 1000)
+    monkeypatch.setattr("basis.validation.MAX_BYTES", 1000)
     with pytest.raises(MemoryError, match=r"fitting 5 unknowns to 20 samples"):
         fit(wi, wo, v, zb)
 

@@ -1,4 +1,7 @@
-"""The one numba decorator the package uses, so every kernel is cached the same way."""
+"""The numba decorators every kernel of scatmodes uses, so all are compiled and cached alike.
+
+Public so that ``project`` and ``compress`` (and extensions) share one configuration.
+"""
 
 from functools import partial
 

@@ -1,7 +1,8 @@
-"""Input validation shared by the public wrappers of every package.
+"""Input validation shared by the public wrappers of every package of scatmodes.
 
 Validation happens only at the public boundary; kernels assume clean, contiguous float64.
-Messages follow one pattern: "<arg> must <rule>, got <value>".
+Messages follow one pattern: "<arg> must <rule>, got <value>". The module is public so that
+``project``, ``compress`` and user code built on ``basis`` check their inputs the same way.
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ def check_bytes(nbytes: float, what: str) -> None:
     if nbytes > MAX_BYTES:
         raise MemoryError(
             f"{what} would need {nbytes / 2**30:.3g} GiB, more than the limit of "
-            f"{MAX_BYTES / 2**30:.3g} GiB (basis._validate.MAX_BYTES); "
+            f"{MAX_BYTES / 2**30:.3g} GiB (basis.validation.MAX_BYTES); "
             "use a lower order or work on fewer points at a time"
         )
 
@@ -100,3 +101,12 @@ def as_directions(
                              f"{norm.size} do not (first at flat index {k}, z = "
                              f"{d.reshape(-1, 3)[k, 2]:.6g})")
     return d
+
+
+def broadcast_batch(wi: NDArray, wo: NDArray) -> tuple[int, ...]:
+    """Broadcast batch shape of two (..., 3) direction arrays, or a clear ValueError."""
+    try:
+        return tuple(np.broadcast_shapes(wi.shape[:-1], wo.shape[:-1]))
+    except ValueError:
+        raise ValueError(f"wi and wo must have broadcastable batch shapes, got {wi.shape} and "
+                         f"{wo.shape}") from None
