@@ -1,11 +1,14 @@
 """The mathematics: spherical harmonics, hemisphere Zernike functions, Helmholtz surface
-scattering modes, quadrature rules and the symmetric coefficient matrix.
+scattering modes, quadrature rules, the symmetric coefficient matrix and its evaluation.
 
-``basis`` knows nothing of BRDF models, files or plots.
+``basis`` knows nothing of BRDF models, files or plots; ``project`` and ``compress`` build
+on it, never the other way round.
 """
 
-from ._base import Basis
+from ._base import AzimuthalBlocks, Basis
 from .directions import from_angles, from_rusinkiewicz, to_angles, to_rusinkiewicz
+from .evaluate import Evaluator
+from .kinds import KINDS, make_basis
 from .matrix import QUANTITIES, CoefficientMatrix
 from .modes import HelmholtzModes
 from .quadrature import HemisphereRule, hemisphere_rule, sphere_rule
@@ -13,9 +16,12 @@ from .sh import HemiHarmonics, SphericalHarmonics
 from .zernike import HemiZernike, zernike_radial
 
 __all__ = [
+    "KINDS",
     "QUANTITIES",
+    "AzimuthalBlocks",
     "Basis",
     "CoefficientMatrix",
+    "Evaluator",
     "HelmholtzModes",
     "HemiHarmonics",
     "HemiZernike",
@@ -24,6 +30,7 @@ __all__ = [
     "from_angles",
     "from_rusinkiewicz",
     "hemisphere_rule",
+    "make_basis",
     "sphere_rule",
     "to_angles",
     "to_rusinkiewicz",

@@ -1,11 +1,33 @@
-"""What every basis shares: the uniform shape (size, order, degree, azimuthal, eval)."""
+"""What every basis shares: the uniform shape (size, order, degree, azimuthal, eval), the
+azimuthal block layout and the radial factors."""
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from .validation import as_directions, check_bytes, nonneg_int
+
+
+class AzimuthalBlocks(NamedTuple):
+    """Positions of a basis' functions grouped by azimuthal order m = 0..order.
+
+    ``cos[m]`` holds the flat positions of the functions with azimuthal order +m (for m = 0,
+    the zonal ones) and ``sin[m]`` those with -m (empty for m = 0), each ordered by degree.
+    Every basis of this package pairs them: ``cos[m][j]`` and ``sin[m][j]`` share their
+    degree and radial factor, so ``len(cos[m]) == len(sin[m])`` for m > 0. An isotropic
+    coefficient matrix is block diagonal in this layout, with one block per m.
+    """
+
+    cos: tuple[NDArray[np.int64], ...]
+    sin: tuple[NDArray[np.int64], ...]
+
+    @property
+    def sizes(self) -> NDArray[np.int64]:
+        """(order + 1,) number of functions per azimuthal order (cos side)."""
+        return np.array([c.size for c in self.cos], dtype=np.int64)
 
 
 class Basis:
@@ -66,6 +88,77 @@ class Basis:
 
     def _with_order(self, order: int) -> Basis:
         return type(self)(order)
+
+    def azimuthal_blocks(self) -> AzimuthalBlocks:
+        """The azimuthal block layout: positions of the cos(m phi) and sin(m phi) functions.
+
+        Returns
+        -------
+        AzimuthalBlocks
+            ``cos[m]``, ``sin[m]`` for m = 0..max |azimuthal| (read-only int64 arrays).
+
+        Examples
+        --------
+        >>> from basis import HemiZernike
+        >>> blocks = HemiZernike(2).azimuthal_blocks()
+        >>> [c.tolist() for c in blocks.cos], [s.tolist() for s in blocks.sin]
+        ([[0, 4], [2], [5]], [[], [1], [3]])
+        """
+        cached = self.__dict__.get("_blocks_cache")
+        if cached is None:
+            az = self._azimuthal
+            top = int(np.max(np.abs(az))) if az.size else -1
+            cos = tuple(np.flatnonzero(az == m) for m in range(top + 1))
+            sin = tuple(np.flatnonzero(az == -m) if m else np.empty(0, np.int64)
+                        for m in range(top + 1))
+            for a in (*cos, *sin):
+                a.flags.writeable = False
+            cached = self.__dict__["_blocks_cache"] = AzimuthalBlocks(cos, sin)
+        return cached
+
+    def radial(self, z: ArrayLike) -> NDArray[np.float64]:
+        """Radial factors P_k(z) of every function, b_k(theta, phi) = P_k(cos theta) A_k(phi).
+
+        Parameters
+        ----------
+        z : (n,) array_like of float
+            cos(theta), in [0, 1] for hemisphere bases and [-1, 1] for the sphere.
+
+        Returns
+        -------
+        (n, size) ndarray of float64
+            The value at the azimuth where A_k = 1: A_k is 1 for zonal functions,
+            cos(m phi) for azimuthal order m > 0 and sin(|m| phi) for m < 0 (with the
+            sqrt(2) or other normalisation inside P_k). A sin function has the radial factor
+            of the cos function of the same degree and |m| (see :meth:`azimuthal_blocks`),
+            so one evaluation at phi = 0 gives them all.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from basis import HemiZernike
+        >>> zb = HemiZernike(3)
+        >>> w = np.array([0.6 * np.cos(0.4), 0.6 * np.sin(0.4), 0.8])
+        >>> ang = np.where(zb.azimuthal > 0, np.cos(zb.azimuthal * 0.4),
+        ...                np.where(zb.azimuthal < 0, np.sin(-zb.azimuthal * 0.4), 1.0))
+        >>> bool(np.allclose(zb.radial([0.8])[0] * ang, zb.eval(w), atol=1e-14))
+        True
+        """
+        try:
+            zz = np.asarray(z, dtype=np.float64)
+        except (TypeError, ValueError):
+            raise TypeError(f"z must be an array of floats, got {type(z).__name__}") from None
+        if zz.ndim != 1:
+            raise ValueError(f"z must be one-dimensional, got shape {zz.shape}")
+        lo = 0.0 if self.domain == "hemisphere" else -1.0
+        if not np.all(np.isfinite(zz)) or np.any((zz < lo) | (zz > 1.0)):
+            raise ValueError(f"z must lie in [{lo:g}, 1] for {self!r}")
+        s = np.sqrt((1.0 - zz) * (1.0 + zz))
+        out = self.eval(np.stack([s, np.zeros_like(zz), zz], axis=-1))
+        blocks = self.azimuthal_blocks()
+        for c, si in zip(blocks.cos[1:], blocks.sin[1:], strict=True):
+            out[:, si] = out[:, c]
+        return out
 
     def eval(self, dirs: ArrayLike) -> NDArray[np.float64]:
         """Evaluate every basis function at the given directions.

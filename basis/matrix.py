@@ -12,8 +12,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis
+from .evaluate import Evaluator, lift_to
 from .modes import HelmholtzModes
-from .validation import as_directions, broadcast_batch, check_bytes, choice
+from .validation import as_directions, check_bytes, choice
 from .zernike import HemiZernike
 
 __all__ = ["CoefficientMatrix", "QUANTITIES"]
@@ -100,6 +101,7 @@ class CoefficientMatrix:
             raise ValueError(f"matrix must be symmetric (reciprocity): max |M - M^T| = "
                              f"{asym:.3g} exceeds rtol * max |M| = {rtol * scale:.3g}; pass "
                              "symmetrize=True to use (M + M^T)/2")
+        self._evaluators: dict[float, Evaluator] = {}
         self._blocks: list[NDArray[np.float64]] | None = None
         self._dense: NDArray[np.float64] | None = m
         if isotropic is None or isotropic:
@@ -130,7 +132,7 @@ class CoefficientMatrix:
         """
         if not isinstance(basis, Basis):
             raise TypeError(f"basis must be a basis object, got {type(basis).__name__}")
-        cos_idx, _ = _azimuthal_groups(basis)
+        cos_idx = basis.azimuthal_blocks().cos
         if len(blocks) != len(cos_idx):
             raise ValueError(f"blocks must hold one block per azimuthal order 0..{len(cos_idx) - 1}"
                              f", got {len(blocks)}")
@@ -149,6 +151,7 @@ class CoefficientMatrix:
         self.basis, self.quantity = basis, choice(quantity, "quantity", QUANTITIES)
         self.info = dict(info or {})
         self._scalar, self._blocks, self._dense = scalar, out, None
+        self._evaluators = {}
         return self
 
     @classmethod
@@ -210,6 +213,27 @@ class CoefficientMatrix:
         return self._blocks is not None
 
     @property
+    def is_scalar(self) -> bool:
+        """True when the matrix has no channel axis (built from a (size, size) array)."""
+        return self._scalar
+
+    @property
+    def stored(self) -> tuple[NDArray[np.float64], ...]:
+        """Read-only views of the coefficients as held, always with a leading channel axis.
+
+        Isotropic: one (channels, k_m, k_m) block per azimuthal order m = 0..order, rows and
+        columns in the order of ``basis.azimuthal_blocks().cos[m]``. Dense: a single
+        (channels, size, size) array. Their bytes add up to :attr:`nbytes`; nothing is
+        copied (use :attr:`blocks` or :attr:`matrix` for copies).
+        """
+        views = []
+        for a in (self._blocks if self._blocks is not None else [self._dense]):
+            v = a.view()
+            v.flags.writeable = False
+            views.append(v)
+        return tuple(views)
+
+    @property
     def blocks(self) -> list[NDArray[np.float64]]:
         """Isotropic blocks, one per azimuthal order (copies); raises if not isotropic."""
         if self._blocks is None:
@@ -259,34 +283,33 @@ class CoefficientMatrix:
         -------
         (...) ndarray, or (..., channels) for a multi-channel matrix
             Zero where either direction is below the horizon (z < 0).
-        """
-        wi = as_directions(wi, "wi")
-        wo = as_directions(wo, "wo")
-        shape = broadcast_batch(wi, wo)
-        below = (wi[..., 2] < 0) | (wo[..., 2] < 0)
-        if self.quantity == "f_cos":
-            if not 0.0 < min_cos < 1.0:
-                raise ValueError(f"min_cos must lie in (0, 1), got {min_cos!r}")
-            wi, wo = _lift(wi, min_cos), _lift(wo, min_cos)
-        else:
-            wi, wo = _lift(wi, 0.0), _lift(wo, 0.0)
-        q = self._bilinear(wi, wo, shape)
-        if self.quantity == "f_cos":
-            q /= _chan(wi[..., 2] * wo[..., 2], self._scalar)
-        q[np.broadcast_to(below, shape)] = 0.0
-        return q
 
-    def _bilinear(self, wi: NDArray, wo: NDArray, shape: tuple) -> NDArray:
-        """b(wi)^T M b(wo) for every channel, broadcast over the batch shapes."""
-        npts = int(np.prod(shape))
-        check_bytes(8.0 * self.basis.size * npts * 2, f"evaluating {self!r} at {npts} pairs")
-        bi = self.basis.eval(wi)
-        bo = self.basis.eval(wo)
-        m = self._full()
-        out = np.stack([np.einsum("...j,...j->...", bi @ m[c], bo) for c in range(m.shape[0])],
-                       axis=-1)
-        out = np.broadcast_to(out, (*shape, m.shape[0]))
-        return out[..., 0].copy() if self._scalar else out.copy()
+        Notes
+        -----
+        Runs compiled kernels (:class:`basis.evaluate.Evaluator`, built on first use for each
+        ``min_cos`` and kept): isotropic matrices by a fused block kernel that never forms
+        the basis tables, dense ones by chunked matrix products.
+        """
+        return self.evaluator(min_cos=min_cos)(wi, wo)
+
+    def evaluator(self, *, min_cos: float = 1e-3) -> Evaluator:
+        """The compiled evaluator of this matrix (built once per ``min_cos``, then kept).
+
+        Parameters
+        ----------
+        min_cos : float
+            As in :meth:`eval`.
+
+        Returns
+        -------
+        basis.evaluate.Evaluator
+            Callable as ``ev(wi, wo)``; ``ev.eval_flat(wi, wo, out)`` skips validation.
+        """
+        key = float(min_cos) if isinstance(min_cos, int | float) else min_cos
+        ev = self._evaluators.get(key)
+        if ev is None:
+            ev = self._evaluators[key] = Evaluator(self, min_cos=min_cos)
+        return ev
 
     def albedo(self, wi: ArrayLike, *, min_cos: float = 1e-3) -> NDArray:
         """Directional albedo a(w_i) = int_H f(w_i, w_o) cos(theta_o) d w_o of the representation.
@@ -313,7 +336,7 @@ class CoefficientMatrix:
         lift = min_cos if self.quantity == "f_cos" else 0.0
         if self.quantity == "f_cos" and not 0.0 < min_cos < 1.0:
             raise ValueError(f"min_cos must lie in (0, 1), got {min_cos!r}")
-        wl = _lift(wi, lift)
+        wl = lift_to(wi, lift)
         h = self.basis.moments("cos" if self.quantity == "f" else "none")
         v = self._full() @ h  # (channels, size)
         a = self.basis.eval(wl) @ v.T  # (..., channels)
@@ -327,7 +350,7 @@ class CoefficientMatrix:
         """The same BRDF in the basis truncated to ``order`` (a prefix of the functions)."""
         nb = self.basis.truncate(order)
         if self._blocks is not None:
-            cos_idx, _ = _azimuthal_groups(nb)
+            cos_idx = nb.azimuthal_blocks().cos
             blocks = [b[:, :idx.size, :idx.size]
                       for b, idx in zip(self._blocks, cos_idx, strict=False)]  # fewer orders
             return CoefficientMatrix.from_blocks(
@@ -451,17 +474,8 @@ def _as_matrix(matrix: ArrayLike, size: int) -> NDArray[np.float64]:
     return m
 
 
-def _azimuthal_groups(basis: Basis) -> tuple[list[NDArray], list[NDArray]]:
-    """Positions of the cos (az = +m) and sin (az = -m) functions per m >= 0, by degree."""
-    az = basis.azimuthal
-    top = int(np.max(np.abs(az))) if az.size else -1
-    cos_idx = [np.flatnonzero(az == m) for m in range(top + 1)]
-    sin_idx = [np.flatnonzero(az == -m) if m else np.empty(0, np.int64) for m in range(top + 1)]
-    return cos_idx, sin_idx
-
-
 def _isotropic_blocks(basis: Basis, m: NDArray) -> list[NDArray]:
-    cos_idx, sin_idx = _azimuthal_groups(basis)
+    cos_idx, sin_idx = basis.azimuthal_blocks()
     blocks = []
     for k, (c, s) in enumerate(zip(cos_idx, sin_idx, strict=True)):
         b = m[:, c[:, None], c]
@@ -472,7 +486,7 @@ def _isotropic_blocks(basis: Basis, m: NDArray) -> list[NDArray]:
 
 
 def _assemble(basis: Basis, blocks: list[NDArray]) -> NDArray:
-    cos_idx, sin_idx = _azimuthal_groups(basis)
+    cos_idx, sin_idx = basis.azimuthal_blocks()
     out = np.zeros((blocks[0].shape[0], basis.size, basis.size))
     for k, (c, s) in enumerate(zip(cos_idx, sin_idx, strict=True)):
         out[:, c[:, None], c] = blocks[k]
@@ -483,7 +497,7 @@ def _assemble(basis: Basis, blocks: list[NDArray]) -> NDArray:
 
 def _rotation_action(basis: Basis, angle: float) -> NDArray[np.float64]:
     """(size, size) A with b(R^-1 w) = A b(w), R the turn by ``angle`` about z."""
-    cos_idx, sin_idx = _azimuthal_groups(basis)
+    cos_idx, sin_idx = basis.azimuthal_blocks()
     a = np.eye(basis.size)
     for m in range(1, len(cos_idx)):
         c, s = cos_idx[m], sin_idx[m]
@@ -498,26 +512,3 @@ def _rotation_action(basis: Basis, angle: float) -> NDArray[np.float64]:
 def _iso_mode_factor(n: NDArray, m: NDArray, l: NDArray) -> NDArray[np.float64]:
     """Mode coefficient / block entry: 1, sqrt(2), sqrt(2), 2 (see HelmholtzModes Notes)."""
     return np.where(n == m, np.where(l == 0, 1.0, _R2), np.where(l == 0, _R2, 2.0))
-
-
-def _lift(w: NDArray, min_cos: float) -> NDArray:
-    """Directions with z < min_cos moved up to z = min_cos at the same azimuth (a copy)."""
-    low = w[..., 2] < min_cos
-    if not np.any(low):
-        return w
-    w = w.copy()
-    v = w[low]
-    s = np.hypot(v[:, 0], v[:, 1])
-    s_new = np.sqrt(1.0 - min_cos * min_cos)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        f = np.where(s > 0, s_new / s, 0.0)
-    v[:, 0] *= f
-    v[:, 1] *= f
-    v[s == 0, 0] = s_new  # straight down (z = -1): any azimuth will do
-    v[:, 2] = min_cos
-    w[low] = v
-    return w
-
-
-def _chan(x: NDArray, scalar: bool) -> NDArray:
-    return x if scalar else x[..., None]

@@ -1,6 +1,6 @@
 """Real spherical harmonics on the sphere and their parity restrictions to the hemisphere.
 
-Convention (DESIGN.md): orthonormal on the sphere, no Condon-Shortley phase, m > 0 uses
+Convention: orthonormal on the sphere, no Condon-Shortley phase, m > 0 uses
 cos(m phi), m < 0 uses sin(|m| phi); the same values as pyshtools with normalization='ortho',
 csphase=1, kind='real'. Flat index of (l, m) in the full basis: l*l + l + m.
 """
@@ -25,7 +25,31 @@ _RESCALE = 600
 _PARITY_CODE = {"all": 2, "odd": 1, "even": 0}
 
 
-class SphericalHarmonics(Basis):
+class _Harmonics(Basis):
+    """Real spherical harmonics of one parity class (all, odd or even l + |m|), degrees
+    0..lmax: the indices, the scaled Legendre recurrence and its kernel, shared by
+    :class:`SphericalHarmonics` and :class:`HemiHarmonics`."""
+
+    max_order = 2800
+    _parity = "all"
+    _norm = 1.0
+
+    def __init__(self, lmax: int) -> None:
+        super().__init__(lmax, "lmax")
+        self._degree, self._azimuthal = _sh_indices(self._order, self._parity)
+        self._a, self._b, self._d = _legendre_tables(self._order)
+
+    @property
+    def lmax(self) -> int:
+        """Highest degree (same as ``order``)."""
+        return self._order
+
+    def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
+        _sh_kernel(dirs, self._order, _PARITY_CODE[self._parity], self._norm,
+                   self._a, self._b, self._d, triangular_offsets(self._order), out)
+
+
+class SphericalHarmonics(_Harmonics):
     """Real orthonormal spherical harmonics on the whole sphere, degrees 0..lmax.
 
     Parameters
@@ -57,23 +81,6 @@ class SphericalHarmonics(Basis):
 
     domain = "sphere"
     kind = "sh"
-    max_order = 2800
-    _parity = "all"
-    _norm = 1.0
-
-    def __init__(self, lmax: int) -> None:
-        super().__init__(lmax, "lmax")
-        self._degree, self._azimuthal = _sh_indices(self._order, self._parity)
-        self._a, self._b, self._d = _legendre_tables(self._order)
-
-    @property
-    def lmax(self) -> int:
-        """Highest degree (same as ``order``)."""
-        return self._order
-
-    def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
-        _sh_kernel(dirs, self._order, _PARITY_CODE[self._parity], self._norm,
-                   self._a, self._b, self._d, triangular_offsets(self._order), out)
 
     def exact_rule(self) -> HemisphereRule:
         """A product rule exact for every product of two functions of this basis over its domain."""
@@ -147,7 +154,7 @@ class SphericalHarmonics(Basis):
         return np.where(m >= 0, c[0, l, np.abs(m)], c[1, l, np.abs(m)])
 
 
-class HemiHarmonics(SphericalHarmonics):
+class HemiHarmonics(_Harmonics):
     """sqrt(2) Y_lm with l + |m| odd (or even): real harmonics orthonormal on the hemisphere.
 
     Parameters
@@ -176,12 +183,16 @@ class HemiHarmonics(SphericalHarmonics):
     """
 
     domain = "hemisphere"
-    kind = "hemi_sh"
     _norm = float(np.sqrt(2.0))
 
     def __init__(self, lmax: int, parity: str = "odd") -> None:
         self._parity = choice(parity, "parity", ("odd", "even"))
         super().__init__(lmax)
+
+    @property
+    def kind(self) -> str:
+        """``"harmonics"`` (odd parity) or ``"harmonics-even"``; see :func:`basis.make_basis`."""
+        return "harmonics" if self._parity == "odd" else "harmonics-even"
 
     def _with_order(self, order: int) -> HemiHarmonics:
         return type(self)(order, self._parity)
@@ -199,14 +210,6 @@ class HemiHarmonics(SphericalHarmonics):
 
     def __repr__(self) -> str:
         return f"HemiHarmonics({self._order}, parity={self._parity!r})"
-
-    def _full_sphere_only(self, *args, **kwargs):
-        raise NotImplementedError("grid transforms and pyshtools arrays are defined for "
-                                  "SphericalHarmonics only; a hemisphere parity subset is not "
-                                  "a full-sphere expansion")
-
-    # a parity subset is not a pyshtools coefficient array, nor expandable on the sphere grid
-    to_cilm = from_cilm = grid = expand = synthesize = _full_sphere_only
 
 
 def _sh_indices(lmax: int, parity: str) -> tuple[NDArray[np.int64], NDArray[np.int64]]:

@@ -25,8 +25,6 @@ from numpy.typing import ArrayLike, NDArray
 from basis import CoefficientMatrix
 from basis.validation import as_directions
 
-from .evaluate import FastEvaluator
-
 __all__ = ["render_sphere", "tonemap"]
 
 #: Largest image side accepted (16.8 million pixels); larger pictures would only be slow.
@@ -209,9 +207,7 @@ def _evaluator(brdf: object, min_cos: float):
     if isinstance(brdf, CoefficientMatrix):
         if not 0.0 < min_cos < 1.0:
             raise ValueError(f"min_cos must lie in (0, 1), got {min_cos!r}")
-        if brdf.is_isotropic:
-            return FastEvaluator(brdf, min_cos=min_cos)
-        return lambda wi, wo: brdf.eval(wi, wo, min_cos=min_cos)
+        return brdf.evaluator(min_cos=min_cos)
     if not callable(getattr(brdf, "eval", None)):
         raise TypeError(f"brdf must be a basis.CoefficientMatrix or a BRDF with eval(wi, wo) "
                         f"(e.g. project.models.Lambert(0.5)), got {type(brdf).__name__}")

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 import basis
 import project
 from basis import CoefficientMatrix
+from basis.evaluate import lift_to
 from basis.validation import as_directions, nonneg_int
 
 from .study import MAX_THETA, METRICS, NODES, errors, eval_ns, make_basis, reference_samples
@@ -309,9 +310,7 @@ def for_scene(cm: CoefficientMatrix, *, lights: Environment | ArrayLike,
     ell = lights.coefficients(b, cm.quantity)  # (size, lc)
     mat = cm.matrix.reshape(cm.channels, b.size, b.size)
     vz = np.maximum(v[:, 2], min_cos) if cm.quantity == "f_cos" else np.ones(v.shape[0])
-    from basis.matrix import _lift
-
-    bv = b.eval(_lift(v, min_cos) if cm.quantity == "f_cos" else v)  # (m, size)
+    bv = b.eval(lift_to(v, min_cos) if cm.quantity == "f_cos" else v)  # (m, size)
     deg = b.degree
 
     def radiance(m: NDArray, s_in: int, s_out: int) -> NDArray:
@@ -341,8 +340,7 @@ def for_scene(cm: CoefficientMatrix, *, lights: Environment | ArrayLike,
     reduced = truncate(cm, order)
     chosen, error = reduced, symmetric[order]
     chosen_radiance = radiance(mat, sizes[order], sizes[order])
-    n_terms = sum(blk.shape[-1] for blk in (reduced._blocks if reduced.is_isotropic
-                                            else [reduced._dense]))
+    n_terms = sum(blk.shape[-1] for blk in reduced.stored)
     rank = n_terms
     for r in range(1, n_terms):
         lr = lowrank(reduced, r)

@@ -131,15 +131,13 @@ class Atlas:
 
     def plot(self, path: str | Path) -> Path:
         """Write one PNG with a panel per :class:`Panel` (atomically); returns the path."""
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure  # no pyplot: the user's backend is left alone
 
         n = max(1, len(self.panels))
         cols = min(3, n)
         nrows = -(-n // cols)
-        fig, axes = plt.subplots(nrows, cols, figsize=(5.2 * cols, 4.0 * nrows), squeeze=False)
+        fig = Figure(figsize=(5.2 * cols, 4.0 * nrows))
+        axes = fig.subplots(nrows, cols, squeeze=False)
         for ax, p in zip(axes.flat, self.panels, strict=False):
             rows = self.select(p.table, **p.where)
             keys = (p.group,) if isinstance(p.group, str) else tuple(p.group)
@@ -167,7 +165,6 @@ class Atlas:
         fig.tight_layout()
         with atomic_path(path, suffix=".png") as tmp:
             fig.savefig(tmp, format="png", dpi=80)
-        plt.close(fig)
         return Path(path)
 
 
@@ -450,9 +447,9 @@ def _uniform_pairs(rng: np.random.Generator, n: int) -> tuple[NDArray, NDArray]:
 def _iso_design(b: basis.Basis, wi: NDArray, wo: NDArray) -> NDArray[np.float64]:
     """The isotropic design matrix of :func:`project.lstsq.design_matrix` for any basis,
     full-sphere harmonics included (which ``project.fit`` refuses on purpose)."""
-    from project.lstsq import _design, _layout
+    from project.lstsq import design_matrix
 
-    return _design(b.eval(wi), b.eval(wo), _layout(b, True))
+    return design_matrix(wi, wo, b, isotropic=True)
 
 
 def _cond(a: NDArray) -> float:

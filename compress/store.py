@@ -1,6 +1,6 @@
 """Saving and loading coefficient matrices: HDF5 (h5py) with a versioned schema.
 
-Schema version 1
+Schema version 2
 ----------------
 One file holds one :class:`basis.CoefficientMatrix`. Everything is in the root group ``/``.
 
@@ -8,12 +8,12 @@ Root attributes:
 
 ==================  =========================================================================
 ``format``          the string ``"scatmodes.coefficients"`` (foreign files lack it)
-``schema_version``  integer, 1
+``schema_version``  integer, 2
 ``library``         ``"scatmodes <version>"`` that wrote the file (information only)
-``basis_kind``      ``"zernike"`` (HemiZernike), ``"hemi_sh"`` (HemiHarmonics) or ``"sh"``
-                    (SphericalHarmonics): ``Basis.kind``
+``basis_kind``      ``Basis.kind``, one of ``basis.KINDS``: ``"zernike"`` (HemiZernike),
+                    ``"harmonics"`` (HemiHarmonics, odd), ``"harmonics-even"`` or ``"sh"``
+                    (SphericalHarmonics)
 ``basis_order``     integer, inclusive order (lmax or n_max)
-``basis_parity``    ``"odd"``, ``"even"`` (HemiHarmonics) or ``"all"`` (the others)
 ``quantity``        ``"f"`` or ``"f_cos"`` (what the matrix represents, see CoefficientMatrix)
 ``channels``        integer >= 1
 ``scalar``          bool: True if the matrix has no channel axis ((size, size))
@@ -46,6 +46,10 @@ under the real name. Reading refuses, with a message naming the problem: files t
 HDF5 (or are truncated), HDF5 files without the ``format`` attribute (foreign), and schema
 versions other than those listed in :data:`READABLE_VERSIONS`. Older versions stay readable:
 each version has its own reader in ``_READERS``.
+
+Schema version 1 (written by scatmodes 0.1.0 before the basis kinds had one vocabulary)
+differs only in naming the hemisphere harmonics ``basis_kind = "hemi_sh"`` with a separate
+``basis_parity`` attribute (``"odd"`` or ``"even"``; ``"all"`` for the other kinds).
 """
 
 from __future__ import annotations
@@ -69,7 +73,7 @@ __all__ = ["FORMAT", "READABLE_VERSIONS", "SCHEMA_VERSION", "load", "save"]
 #: Value of the ``format`` attribute that marks a scatmodes coefficient file.
 FORMAT = "scatmodes.coefficients"
 #: Schema written by :func:`save`.
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 #: Storage precisions accepted by :func:`save`.
 DTYPES = ("float64", "float32", "float16")
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
@@ -78,7 +82,7 @@ _PROVENANCE_KEYS = ("source", "method", "truncation_error", "error_estimate", "r
 
 
 def save(cm: CoefficientMatrix, path: str | os.PathLike, *, dtype: str = "float64") -> Path:
-    """Write a coefficient matrix to an HDF5 file (schema version 1, see the module notes).
+    """Write a coefficient matrix to an HDF5 file (schema version 2, see the module notes).
 
     Parameters
     ----------
@@ -112,7 +116,7 @@ def save(cm: CoefficientMatrix, path: str | os.PathLike, *, dtype: str = "float6
     if not isinstance(dtype, str) or dtype not in DTYPES:
         raise ValueError(f"dtype must be one of {', '.join(map(repr, DTYPES))}, got {dtype!r}")
     info_text = json.dumps(_encode(cm.info), allow_nan=False)
-    scalar = cm._scalar
+    scalar = cm.is_scalar
     arrays = _packed(cm)
     top = float(np.finfo(dtype).max)
     worst = max(float(np.max(np.abs(a), initial=0.0)) for a in arrays.values())
@@ -127,7 +131,6 @@ def save(cm: CoefficientMatrix, path: str | os.PathLike, *, dtype: str = "float6
         a["library"] = f"scatmodes {_version()}"
         a["basis_kind"] = cm.basis.kind
         a["basis_order"] = cm.basis.order
-        a["basis_parity"] = getattr(cm.basis, "parity", "all")
         a["quantity"] = cm.quantity
         a["channels"] = cm.channels
         a["scalar"] = bool(scalar)
@@ -208,21 +211,35 @@ def load(path: str | os.PathLike) -> CoefficientMatrix:
             raise ValueError(f"{str(p)!r} is damaged: {exc}") from None
 
 
-# -- schema version 1 --------------------------------------------------------------------------
+# -- schema versions 1 and 2 -------------------------------------------------------------------
 def _read_v1(f: h5py.File, p: Path) -> CoefficientMatrix:
     kind = _attr(f, "basis_kind", p)
+    if kind == "hemi_sh":
+        parity = _attr(f, "basis_parity", p)
+        kind = {"odd": "harmonics", "even": "harmonics-even"}.get(parity)
+        if kind is None:
+            raise ValueError(f"{str(p)!r} is damaged: basis_parity {parity!r} of hemisphere "
+                             "harmonics is neither 'odd' nor 'even'")
+    return _read_matrix(f, p, kind)
+
+
+def _read_v2(f: h5py.File, p: Path) -> CoefficientMatrix:
+    return _read_matrix(f, p, _attr(f, "basis_kind", p))
+
+
+def _read_matrix(f: h5py.File, p: Path, kind: str) -> CoefficientMatrix:
+    if kind not in basis.KINDS:
+        raise ValueError(f"{str(p)!r} names an unknown basis kind {kind!r} (known: "
+                         f"{', '.join(map(repr, basis.KINDS))})")
     order = int(_attr(f, "basis_order", p))
-    parity = _attr(f, "basis_parity", p)
-    b = _make_basis(kind, order, parity, p)
+    b = basis.make_basis(kind, order)
     quantity = _attr(f, "quantity", p)
     channels = int(_attr(f, "channels", p))
     scalar = bool(_attr(f, "scalar", p))
     storage = _attr(f, "storage", p)
     info = _decode(json.loads(_attr(f, "info", p)))
     if storage == "isotropic":
-        from basis.matrix import _azimuthal_groups
-
-        cos_idx, _ = _azimuthal_groups(b)
+        cos_idx = b.azimuthal_blocks().cos
         g = f["blocks"]
         blocks = []
         for m, idx in enumerate(cos_idx):
@@ -241,7 +258,7 @@ def _read_v1(f: h5py.File, p: Path) -> CoefficientMatrix:
                      "'isotropic' nor 'dense'")
 
 
-_READERS = {1: _read_v1}
+_READERS = {1: _read_v1, 2: _read_v2}
 #: Schema versions :func:`load` understands.
 READABLE_VERSIONS = tuple(sorted(_READERS))
 
@@ -269,26 +286,15 @@ def _attr(f: h5py.File, name: str, p: Path, *, required: bool = True) -> Any:
     return v
 
 
-def _make_basis(kind: str, order: int, parity: str, p: Path) -> basis.Basis:
-    if kind == "zernike":
-        return basis.HemiZernike(order)
-    if kind == "hemi_sh":
-        return basis.HemiHarmonics(order, parity=parity)
-    if kind == "sh":
-        return basis.SphericalHarmonics(order)
-    raise ValueError(f"{str(p)!r} names an unknown basis kind {kind!r} (known: 'zernike', "
-                     "'hemi_sh', 'sh')")
-
-
 def _packed(cm: CoefficientMatrix) -> dict[str, NDArray[np.float64]]:
     """Upper triangles, (channels, k (k + 1) / 2), of each block or of the dense matrix."""
     if cm.is_isotropic:
         out = {}
-        for m, blk in enumerate(cm._blocks):
+        for m, blk in enumerate(cm.stored):
             iu = np.triu_indices(blk.shape[-1])
             out[f"m{m}"] = np.ascontiguousarray(blk[:, iu[0], iu[1]])
         return out
-    dense = cm._dense
+    dense = cm.stored[0]
     iu = np.triu_indices(dense.shape[-1])
     return {"matrix": np.ascontiguousarray(dense[:, iu[0], iu[1]])}
 

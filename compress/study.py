@@ -47,13 +47,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-import basis
 import project
-from basis import CoefficientMatrix
+from basis import KINDS, CoefficientMatrix, make_basis
 from basis.validation import nonneg_int
 from project.io import atomic_path
 
-from .evaluate import FastEvaluator
 from .truncate import smooth as _smooth
 from .truncate import unique_coefficients
 
@@ -62,7 +60,6 @@ __all__ = ["KINDS", "METRICS", "Study", "Samples", "errors", "make_basis", "pare
 
 #: Basis kinds by name: the hemisphere Zernike functions, Westin's odd hemisphere harmonics,
 #: the even completion, and the full-sphere harmonics (BRDF zero below the horizon).
-KINDS = ("zernike", "harmonics", "harmonics-even", "sh")
 #: Error columns of a study (see the module notes).
 METRICS = ("l2", "max_abs", "rel_rms", "log_rms", "smape", "negative", "albedo", "reciprocity")
 #: Default test set: Gauss nodes per cosine, azimuth differences.
@@ -71,28 +68,6 @@ NODES = (40, 80)
 MAX_THETA = 1.4
 #: Evaluation is timed on this many pairs (best of three).
 TIMING_PAIRS = 1 << 18
-
-
-def make_basis(kind: str, order: int) -> basis.Basis:
-    """The basis named ``kind`` (one of :data:`KINDS`) at ``order``.
-
-    Examples
-    --------
-    >>> make_basis("harmonics", 4), make_basis("zernike", 2).size
-    (HemiHarmonics(4, parity='odd'), 6)
-    """
-    if kind == "zernike":
-        return basis.HemiZernike(order)
-    if kind == "harmonics":
-        if order == 0:
-            raise ValueError("order must be >= 1 for kind='harmonics' (the odd hemisphere "
-                             "harmonics start at degree 1), got 0")
-        return basis.HemiHarmonics(order, parity="odd")
-    if kind == "harmonics-even":
-        return basis.HemiHarmonics(order, parity="even")
-    if kind == "sh":
-        return basis.SphericalHarmonics(order)
-    raise ValueError(f"kind must be one of {', '.join(map(repr, KINDS))}, got {kind!r}")
 
 
 # -- the test set --------------------------------------------------------------------------
@@ -200,12 +175,9 @@ def _uniform_h(u: NDArray, v: NDArray) -> NDArray:
 def _represented(cm: CoefficientMatrix, ts: Samples) -> NDArray[np.float64]:
     """f_hat at the test pairs as (n, channels); no grazing lift (min_cos tiny) so that
     f_hat cos cos is exactly the expansion q_hat."""
-    if cm.is_isotropic:
-        fe = FastEvaluator(cm, min_cos=1e-12)
-        out = np.empty((ts.wi.shape[0], cm.channels))
-        fe.eval_flat(ts.wi, ts.wo, out)
-        return out
-    return np.asarray(cm.eval(ts.wi, ts.wo, min_cos=1e-12)).reshape(ts.wi.shape[0], -1)
+    out = np.empty((ts.wi.shape[0], cm.channels))
+    cm.evaluator(min_cos=1e-12).eval_flat(ts.wi, ts.wo, out)
+    return out
 
 
 def errors(cm: CoefficientMatrix, ts: Samples) -> dict[str, float | None]:
@@ -270,15 +242,11 @@ def eval_ns(cm: CoefficientMatrix, *, pairs: int = TIMING_PAIRS, seed: int = 1) 
     w[..., 2] = np.abs(w[..., 2])
     w /= np.linalg.norm(w, axis=-1, keepdims=True)
     wi, wo = np.ascontiguousarray(w[0]), np.ascontiguousarray(w[1])
-    if cm.is_isotropic:
-        fe = FastEvaluator(cm)
-        out = np.empty((pairs, cm.channels))
+    ev = cm.evaluator()
+    out = np.empty((pairs, cm.channels))
 
-        def run() -> None:
-            fe.eval_flat(wi, wo, out)
-    else:
-        def run() -> None:
-            cm.eval(wi, wo)
+    def run() -> None:
+        ev.eval_flat(wi, wo, out)
     run()
     best = np.inf
     for _ in range(3):
@@ -357,16 +325,14 @@ class Study:
         """
         if metric not in METRICS:
             raise ValueError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
+        from matplotlib.figure import Figure  # no pyplot: the user's backend is left alone
 
         err = self.column(metric)
         floor = np.nanmin(err[err > 0]) / 10 if np.any(err > 0) else 1e-16
         err = np.where(err > 0, err, floor)
         kinds = self.column("kind")
-        fig, axes = plt.subplots(1, 3, figsize=(15, 4.5))
+        fig = Figure(figsize=(15, 4.5))
+        axes = fig.subplots(1, 3)
         for ax, xname, xlabel in zip(axes, ("order", "bytes", "eval_ns"),
                                      ("order", "bytes (float64, symmetric storage)",
                                       "evaluation time per sample (ns)"), strict=True):
@@ -392,7 +358,6 @@ class Study:
         fig.tight_layout()
         with atomic_path(path, suffix=".png") as tmp:
             fig.savefig(tmp, format="png", dpi=90)
-        plt.close(fig)
         return Path(path)
 
 

@@ -49,7 +49,7 @@ def _check_cm(cm: object) -> CoefficientMatrix:
 
 def _with(cm: CoefficientMatrix, stored: list[NDArray] | NDArray, info: dict) -> CoefficientMatrix:
     """A matrix like ``cm`` with new (channels-first) blocks or dense matrix and info."""
-    scalar = cm._scalar
+    scalar = cm.is_scalar
     if cm.is_isotropic:
         return CoefficientMatrix.from_blocks(cm.basis, [b[0] if scalar else b for b in stored],
                                              cm.quantity, info=info)
@@ -58,7 +58,8 @@ def _with(cm: CoefficientMatrix, stored: list[NDArray] | NDArray, info: dict) ->
 
 
 def _stored(cm: CoefficientMatrix) -> list[NDArray] | NDArray:
-    return [b.copy() for b in cm._blocks] if cm.is_isotropic else cm._dense.copy()
+    stored = [b.copy() for b in cm.stored]
+    return stored if cm.is_isotropic else stored[0]
 
 
 def _frobenius2(cm_stored: list[NDArray] | NDArray) -> NDArray[np.float64]:
@@ -211,9 +212,7 @@ def smooth(cm: CoefficientMatrix, kind: str = "half-gaussian", *, start: int | N
     deg = cm.basis.degree
     full = _stored(cm)
     if isinstance(full, list):
-        from basis.matrix import _azimuthal_groups
-
-        cos_idx, _ = _azimuthal_groups(cm.basis)
+        cos_idx = cm.basis.azimuthal_blocks().cos
         new = []
         for b, idx in zip(full, cos_idx, strict=True):
             f = w[deg[idx]]

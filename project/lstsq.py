@@ -36,6 +36,8 @@ __all__ = [
     "read_table",
     "tessellate_hemisphere",
     "to_unknowns",
+    "Unknowns",
+    "unknowns",
 ]
 
 #: Condition number above which :func:`fit` warns (without regularization): the solution's
@@ -50,8 +52,27 @@ _DESIGN_COPIES = 3
 
 # -- the unknowns ------------------------------------------------------------------------------
 @dataclass(frozen=True)
-class _Layout:
-    """Which entries of M each unknown stands for (see :func:`design_matrix`)."""
+class Unknowns:
+    """Which entries of the symmetric matrix M each unknown of a fit stands for.
+
+    Built by :func:`unknowns`; the order and scaling are described in :func:`design_matrix`.
+    All arrays have one entry per unknown.
+
+    Attributes
+    ----------
+    rows, cols : (count,) int arrays
+        Flat basis positions of the (cos, or only) functions of the two factors.
+    sin_rows, sin_cols : (count,) int arrays
+        Their sin partners in an isotropic block (``basis.size`` when there is none).
+    block : (count,) int array
+        Azimuthal order m of the block (isotropic), or -1 (general).
+    brow, bcol : (count,) int arrays
+        Position inside block m (isotropic), or ``rows``, ``cols`` (general).
+    mult : (count,) float array
+        Number of entries of the dense M that share the unknown (1, 2 or 4).
+    sizes : tuple of int
+        Block sizes k_m (isotropic); empty for the general layout.
+    """
 
     rows: NDArray[np.int64]  # cos (or only) function of the first factor, per unknown
     cols: NDArray[np.int64]  # ... of the second factor; rows[u] <= cols[u] in block order
@@ -65,24 +86,47 @@ class _Layout:
 
     @property
     def count(self) -> int:
+        """Number of unknowns."""
         return int(self.rows.size)
 
 
-def _layout(basis: Basis, isotropic: bool) -> _Layout:
+def unknowns(basis: Basis, isotropic: bool = True) -> Unknowns:
+    """The unknowns of a fit in ``basis``: the free entries of an (isotropic) symmetric M.
+
+    Parameters
+    ----------
+    basis : basis.Basis
+    isotropic : bool
+        One block per azimuthal order (True) or every entry M_jk, j <= k (False).
+
+    Returns
+    -------
+    Unknowns
+
+    Examples
+    --------
+    >>> from basis import HemiZernike
+    >>> unknowns(HemiZernike(8)).count, unknowns(HemiZernike(8), isotropic=False).count
+    (55, 1035)
+    """
+    _check_basis(basis, hemisphere=False)
+    return _layout(basis, _flag(isotropic, "isotropic"))
+
+
+def _layout(basis: Basis, isotropic: bool) -> Unknowns:
     size = basis.size
     if not isotropic:
         r, c = np.triu_indices(size)
         none = np.full(r.size, size, dtype=np.int64)
-        return _Layout(r.astype(np.int64), c.astype(np.int64), none, none,
+        return Unknowns(r.astype(np.int64), c.astype(np.int64), none, none,
                        np.full(r.size, -1, dtype=np.int64), r.astype(np.int64),
                        c.astype(np.int64), np.where(r == c, 1.0, 2.0), ())
-    az = basis.azimuthal
-    top = int(np.max(np.abs(az))) if az.size else -1
     parts: list[tuple[NDArray, ...]] = []
     sizes = []
-    for m in range(top + 1):
-        cos_idx = np.flatnonzero(az == m)
-        sin_idx = np.flatnonzero(az == -m) if m else np.full(cos_idx.size, size)
+    blocks = basis.azimuthal_blocks()
+    for m, (cos_idx, sin_idx) in enumerate(zip(*blocks, strict=True)):
+        if m == 0:
+            sin_idx = np.full(cos_idx.size, size)
         sizes.append(cos_idx.size)
         j, k = np.triu_indices(cos_idx.size)
         mult = np.where(j == k, 1.0, 2.0) * (1.0 if m == 0 else 2.0)
@@ -90,7 +134,7 @@ def _layout(basis: Basis, isotropic: bool) -> _Layout:
                       j, k, mult))
     cat = [np.concatenate([p[i] for p in parts]) if parts else np.empty(0) for i in range(8)]
     ints = [np.asarray(a, dtype=np.int64) for a in cat[:7]]
-    return _Layout(*ints, np.asarray(cat[7], dtype=np.float64), tuple(sizes))
+    return Unknowns(*ints, np.asarray(cat[7], dtype=np.float64), tuple(sizes))
 
 
 def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
@@ -102,7 +146,9 @@ def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
     wi, wo : (n, 3) array_like of float
         Unit vectors in the upper hemisphere.
     basis : basis.Basis
-        A hemisphere basis (``HemiZernike`` or ``HemiHarmonics``).
+        Any basis. On the hemisphere the full-sphere harmonics give linearly dependent
+        columns (their even and odd halves span the same functions there), which is why
+        :func:`fit` refuses them; the matrix itself is still well defined.
     isotropic : bool
         Unknowns of an isotropic (True) or general reciprocal (False) matrix.
 
@@ -140,14 +186,13 @@ def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
     (1, 55)
     """
     wi, wo, _ = _check_pairs(wi, wo)
-    _check_basis(basis)
-    lay = _layout(basis, _flag(isotropic, "isotropic"))
+    lay = unknowns(basis, isotropic)
     check_bytes(8.0 * wi.shape[0] * lay.count * 2,
                 f"the design matrix of {wi.shape[0]} samples and {lay.count} unknowns")
     return _design(basis.eval(wi), basis.eval(wo), lay)
 
 
-def _design(bi: NDArray, bo: NDArray, lay: _Layout) -> NDArray[np.float64]:
+def _design(bi: NDArray, bo: NDArray, lay: Unknowns) -> NDArray[np.float64]:
     # bi, bo (n, size) basis values; returns (n, unknowns). A zero column is appended so that
     # index ``size`` stands for "no sin partner"; no loop over samples or unknowns.
     n = bi.shape[0]
@@ -201,7 +246,7 @@ def to_unknowns(cm: CoefficientMatrix, *, isotropic: bool = True) -> NDArray[np.
     return out[:, 0].copy() if scalar else out
 
 
-def _unpack(z: NDArray, basis: Basis, lay: _Layout, isotropic: bool, scalar: bool,
+def _unpack(z: NDArray, basis: Basis, lay: Unknowns, isotropic: bool, scalar: bool,
             quantity: str, info: dict[str, Any]) -> CoefficientMatrix:
     # z (unknowns, channels) -> CoefficientMatrix
     x = z / np.sqrt(lay.mult)[:, None]
@@ -395,11 +440,11 @@ def _solve(a: NDArray, y: NDArray, lam: float) -> tuple[NDArray, NDArray, int]:
 
 
 # -- validation --------------------------------------------------------------------------------
-def _check_basis(basis: object) -> None:
+def _check_basis(basis: object, *, hemisphere: bool = True) -> None:
     if not isinstance(basis, Basis):
         raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
                         f"{type(basis).__name__}")
-    if basis.domain != "hemisphere":
+    if hemisphere and basis.domain != "hemisphere":
         raise ValueError(f"basis must be a hemisphere basis (HemiZernike or HemiHarmonics), got "
                          f"{basis!r}: on the hemisphere the full-sphere harmonics are redundant "
                          "(their even and odd halves span the same functions), so a fit in "

@@ -172,13 +172,10 @@ class MatrixBRDF(BRDF):
         n_t, n_pi = _pair(incident, "incident", (2, 1))
         n_z, n_ph = _pair(cells, "cells", (1, 1))
         self.matrix = matrix
-        # evaluated many times per simulation: keep the dense form (no re-assembly per call)
-        self._dense = matrix if not matrix.is_isotropic else CoefficientMatrix(
-            matrix.basis, matrix.matrix, matrix.quantity, isotropic=False)
         self.channels = matrix.channels
         self.isotropic = matrix.is_isotropic
         self.reciprocal = True
-        self._scalar = matrix._scalar
+        self._scalar = matrix.is_scalar
         self.tol, self.min_cos = tol, min_cos
         if self.isotropic:
             n_pi = 1
@@ -261,7 +258,7 @@ class MatrixBRDF(BRDF):
     # -- the BRDF contract ----------------------------------------------------------------
 
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
-        f = self._dense.eval(wi, wo, min_cos=self.min_cos)
+        f = self.matrix.eval(wi, wo, min_cos=self.min_cos)
         return np.maximum(f.reshape(wi.shape[0], self.channels), 0.0)
 
     # -- sampling -------------------------------------------------------------------------

@@ -212,29 +212,21 @@ def _eval_pairs(brdf: Any, wi: NDArray, wo: NDArray, channels: int) -> NDArray[n
 
 # -- the radial factors -----------------------------------------------------------------------
 def radial_table(basis: Basis, z: NDArray[np.float64]) -> NDArray[np.float64]:
-    """P_k(z) for every basis function: b_k(theta, phi) = P_k(cos theta) A_k(phi).
+    """P_k(z) for every basis function; the same as ``basis.radial(z)``.
+
+    Kept for code written against scatmodes 0.1; see :meth:`basis.Basis.radial`.
 
     Parameters
     ----------
     basis : basis.Basis
-    z : (n,) array of float in [-1, 1]
+    z : (n,) array of float
+        cos(theta).
 
     Returns
     -------
     (n, size) ndarray
-        Evaluated at the azimuth where A_k = 1 (phi = 0 for cos and zonal functions,
-        pi / (2 |m|) for sin(|m| phi)).
     """
-    z = np.asarray(z, dtype=np.float64)
-    s = np.sqrt(np.maximum(0.0, (1.0 - z) * (1.0 + z)))
-    az = basis.azimuthal
-    out = np.empty((z.size, basis.size))
-    for m in np.unique(np.where(az < 0, az, 0)):  # 0 covers cos and zonal; m < 0 each sin order
-        phi = 0.0 if m == 0 else np.pi / (2 * -m)
-        d = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
-        cols = az >= 0 if m == 0 else az == m
-        out[:, cols] = basis.eval(d)[:, cols]
-    return out
+    return basis.radial(z)
 
 
 def _top(az: NDArray) -> int:
@@ -402,7 +394,7 @@ def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1):
     full[ia, ib] = fm
     if reciprocal:
         full[ib, ia] = fm
-    p = radial_table(basis, z) * wz[:, None]
+    p = basis.radial(z) * wz[:, None]
     az = basis.azimuthal
     blocks = []
     for m in range(top + 1):
@@ -435,7 +427,7 @@ def _aniso_rule(brdf, basis, quantity, nz, nphi, grading=1):
     st = np.sqrt((1.0 - z) * (1.0 + z))
     az = basis.azimuthal
     sidx = az + order  # signed azimuthal -> 0..2 order
-    wp = radial_table(basis, z) * wz[:, None]  # (nz, size)
+    wp = basis.radial(z) * wz[:, None]  # (nz, size)
     coef, kidx, bidx = _exponential_pairs(order)
     eb = np.exp(-1j * np.outer(dphi, np.arange(-order, order + 1))) * wd[:, None]  # (nd, 2N+1)
     mat = np.zeros((basis.size, basis.size, ch))
@@ -508,7 +500,7 @@ def _add_deltas(blocks_or_dense, deltas, basis, iso):
         while True:
             z, wz = _gauss_z(n)
             r = d.reflectance(z)  # (n, channels)
-            p = radial_table(basis, z)
+            p = basis.radial(z)
             blocks = []
             for m in range(_top(az) + 1):
                 pm = p[:, az == m]
@@ -581,17 +573,15 @@ def _montecarlo(brdf, basis, quantity, iso, samples, seed):
                 error_estimate=float(np.max(stderr)), rel_error=float(np.max(stderr)) / scale,
                 converged=True, standard_error=stderr, norm2=norm2)
     if iso:
-        from basis.matrix import _isotropic_blocks
-
-        blocks = _isotropic_blocks(basis, np.moveaxis(mean, -1, 0))
-        return [np.moveaxis(b, 0, -1) for b in blocks], info
+        iso_cm = CoefficientMatrix(basis, np.moveaxis(mean, -1, 0), isotropic=False).to_isotropic()
+        return [np.moveaxis(b, 0, -1) for b in iso_cm.stored], info
     return mean, info
 
 
 def _lstsq(brdf, basis, quantity, iso, samples, seed, t0):
-    from .lstsq import _layout, fit
+    from .lstsq import fit, unknowns
 
-    n = 2 * _layout(basis, iso).count if samples is None else nonneg_int(samples, "samples")
+    n = 2 * unknowns(basis, iso).count if samples is None else nonneg_int(samples, "samples")
     wi, wo = _sobol_pairs(n, seed)
     n = wi.shape[0]
     v = _eval_pairs(brdf, wi, wo, int(brdf.channels))

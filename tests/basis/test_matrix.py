@@ -278,3 +278,25 @@ def test_rotated_bad_angle(angle, exc, match, rng):
     cm = CoefficientMatrix(HemiZernike(2), _random_symmetric(rng, 6))
     with pytest.raises(exc, match=match):
         cm.rotated(angle)
+
+
+@pytest.mark.parametrize("iso", [True, False])
+@pytest.mark.parametrize("channels", [None, 2])
+def test_stored_views(iso, channels, rng):
+    b = HemiZernike(4)
+    shape = (b.size, b.size) if channels is None else (channels, b.size, b.size)
+    x = rng.normal(size=shape)
+    cm = CoefficientMatrix(b, x + np.swapaxes(x, -1, -2), isotropic=False)
+    cm = cm.to_isotropic() if iso else cm
+    stored = cm.stored
+    assert cm.is_scalar == (channels is None)
+    assert sum(a.nbytes for a in stored) == cm.nbytes
+    assert all(a.ndim == 3 and a.shape[0] == cm.channels for a in stored)
+    if iso:
+        assert [a.shape[-1] for a in stored] == b.azimuthal_blocks().sizes.tolist()
+        for got, want in zip(stored, cm.blocks, strict=True):
+            assert np.array_equal(got.reshape(want.shape), want)
+    else:
+        assert len(stored) == 1 and np.array_equal(stored[0].reshape(shape), cm.matrix)
+    with pytest.raises(ValueError, match="read-only"):
+        stored[0][..., 0, 0] = 1.0

@@ -10,14 +10,13 @@ import pytest
 
 import basis
 from basis import CoefficientMatrix
-from basis.matrix import _azimuthal_groups
 from compress import load, save
 from compress.store import FORMAT, SCHEMA_VERSION
 
 
 def _iso(b: basis.Basis, rng: np.random.Generator, channels: int | None = 3,
          quantity: str = "f_cos") -> CoefficientMatrix:
-    cos_idx, _ = _azimuthal_groups(b)
+    cos_idx = b.azimuthal_blocks().cos
     blocks = []
     for idx in cos_idx:
         shape = (idx.size, idx.size) if channels is None else (channels, idx.size, idx.size)
@@ -127,13 +126,43 @@ def test_foreign_hdf5(tmp_path):
         load(p)
 
 
-@pytest.mark.parametrize("version", [2, 0])
+@pytest.mark.parametrize("version", [3, 0])
 def test_unknown_version(tmp_path, rng, version):
     p = save(_iso(basis.HemiZernike(2), rng, 1), tmp_path / "v.h5")
     with h5py.File(p, "r+") as f:
         f.attrs["schema_version"] = version
     with pytest.raises(ValueError, match=rf"schema version {version}; .* reads schema "
-                                         r"versions 1"):
+                                         r"versions 1, 2"):
+        load(p)
+
+
+@pytest.mark.parametrize("b", [basis.HemiHarmonics(4), basis.HemiHarmonics(3, parity="even"),
+                               basis.HemiZernike(3), basis.SphericalHarmonics(2)])
+def test_schema_1_files_still_load(tmp_path, rng, b):
+    # schema 1 named the hemisphere harmonics "hemi_sh" with a separate basis_parity; rewrite
+    # a fresh file into that form, as scatmodes 0.1.0 wrote it
+    cm = _iso(b, rng, 3)
+    p = save(cm, tmp_path / "old.h5")
+    with h5py.File(p, "r+") as f:
+        f.attrs["schema_version"] = 1
+        f.attrs["basis_parity"] = getattr(b, "parity", "all")
+        if isinstance(b, basis.HemiHarmonics):
+            f.attrs["basis_kind"] = "hemi_sh"
+    back = load(p)
+    assert back.basis == b
+    assert np.array_equal(back.matrix, cm.matrix)
+    with h5py.File(p, "r+") as f:
+        f.attrs["basis_parity"] = "sideways"
+    if isinstance(b, basis.HemiHarmonics):
+        with pytest.raises(ValueError, match="basis_parity 'sideways' .* neither 'odd'"):
+            load(p)
+
+
+def test_unknown_basis_kind(tmp_path, rng):
+    p = save(_iso(basis.HemiZernike(2), rng, 1), tmp_path / "k.h5")
+    with h5py.File(p, "r+") as f:
+        f.attrs["basis_kind"] = "wavelets"
+    with pytest.raises(ValueError, match="unknown basis kind 'wavelets' .* 'harmonics-even'"):
         load(p)
 
 

@@ -7,9 +7,7 @@ import pytest
 
 import basis
 from basis import CoefficientMatrix
-from basis.matrix import _azimuthal_groups
 from compress import (
-    FastEvaluator,
     lowrank,
     precision,
     ringing,
@@ -27,7 +25,7 @@ EPS = np.finfo(float).eps
 
 def _random_iso(b, rng, channels=3, quantity="f_cos"):
     blocks = []
-    for idx in _azimuthal_groups(b)[0]:
+    for idx in b.azimuthal_blocks().cos:
         x = rng.normal(size=(channels, idx.size, idx.size))
         blocks.append(x + x.swapaxes(1, 2))
     return CoefficientMatrix.from_blocks(b, blocks, quantity)
@@ -182,35 +180,3 @@ def test_precision_overflow():
     cm = CoefficientMatrix(basis.HemiZernike(0), [[1e5]])
     with pytest.raises(ValueError, match="cannot hold coefficients up to 100000"):
         precision(cm, "float16")
-
-
-# -- the fast evaluator ------------------------------------------------------------------
-@pytest.mark.parametrize("b", [basis.HemiZernike(16), basis.HemiHarmonics(16),
-                               basis.HemiHarmonics(9, parity="even"),
-                               basis.SphericalHarmonics(8), basis.HemiZernike(0)])
-@pytest.mark.parametrize("quantity", ["f_cos", "f"])
-def test_fast_evaluator_matches_eval(b, quantity, rng):
-    cm = _random_iso(b, rng, 3, quantity)
-    wi = random_directions(rng, 3000)  # both hemispheres: below the horizon gives 0
-    wo = random_directions(rng, 3000)
-    wi[:5, 2] = 0.0  # grazing
-    wi[:5] /= np.linalg.norm(wi[:5], axis=1)[:, None]
-    ref = cm.eval(wi, wo)
-    got = FastEvaluator(cm)(wi, wo)
-    # Chebyshev re-expansion: observed 1.3e-12 relative at Zernike order 16 (change of basis
-    # by least squares on 2k + 8 nodes); bound leaves ~8x headroom
-    assert np.max(np.abs(got - ref)) <= 1e-11 * np.max(np.abs(ref))
-    assert np.all(got[(wi[:, 2] < 0) | (wo[:, 2] < 0)] == 0.0)
-
-
-def test_fast_evaluator_errors(rng):
-    b = basis.HemiZernike(2)
-    x = rng.normal(size=(b.size, b.size))
-    dense = CoefficientMatrix(b, x + x.T, isotropic=False)
-    with pytest.raises(ValueError, match="cm must be isotropic"):
-        FastEvaluator(dense)
-    with pytest.raises(TypeError, match="cm must be a basis.CoefficientMatrix"):
-        FastEvaluator(np.eye(2))
-    with pytest.raises(ValueError, match=r"min_cos must lie in \(0, 1\)"):
-        FastEvaluator(dense.to_isotropic(), min_cos=0.0)
-    assert FastEvaluator(dense.to_isotropic())(np.empty((0, 3)), np.empty((0, 3))).shape == (0,)

@@ -71,7 +71,7 @@ def test_design_columns_are_helmholtz_modes(isotropic, unit_vectors):
     wi, wo = unit_vectors(200, upper=True), unit_vectors(200, upper=True)
     got = design_matrix(wi, wo, zb, isotropic=isotropic)
     hm = HelmholtzModes(4, isotropic=isotropic)
-    lay = fitmod._layout(zb, isotropic)
+    lay = fitmod.unknowns(zb, isotropic)
     if isotropic:
         cells = zip(lay.block, lay.brow, lay.bcol, strict=True)
         where = {(b, j, k): u for u, (b, j, k) in enumerate(cells)}

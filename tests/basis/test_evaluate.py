@@ -1,0 +1,145 @@
+"""basis.evaluate (the compiled evaluator behind CoefficientMatrix.eval): against the direct
+product b(w_i)^T M b(w_o) formed here from Basis.eval and the dense matrix, for every basis
+kind, isotropic and dense storage, one and three channels, both quantities."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import basis
+import compress
+from basis import CoefficientMatrix, Evaluator
+from tests.conftest import random_directions
+
+BASES = [basis.HemiZernike(16), basis.HemiHarmonics(16), basis.HemiHarmonics(9, parity="even"),
+         basis.SphericalHarmonics(8), basis.HemiZernike(0)]
+
+
+def _random(b, rng, channels, quantity, isotropic):
+    shape = (b.size, b.size) if channels is None else (channels, b.size, b.size)
+    x = rng.normal(size=shape)
+    cm = CoefficientMatrix(b, x + np.swapaxes(x, -1, -2), quantity, isotropic=False)
+    return cm.to_isotropic() if isotropic else cm
+
+
+def _lift(w, c):
+    # independent restatement of the grazing rule: same azimuth, cos(theta) raised to c
+    w = w.copy()
+    low = w[:, 2] < c
+    s = np.hypot(w[low, 0], w[low, 1])
+    w[low, 0] *= np.sqrt(1 - c * c) / s
+    w[low, 1] *= np.sqrt(1 - c * c) / s
+    w[low, 2] = c
+    return w
+
+
+def _direct(cm, wi, wo, min_cos):
+    """b(w_i)^T M b(w_o) per channel, divided by cos cos for f_cos; 0 below the horizon."""
+    c = min_cos if cm.quantity == "f_cos" else 0.0
+    li, lo = _lift(wi, c), _lift(wo, c)
+    m = cm.matrix.reshape(-1, cm.basis.size, cm.basis.size)
+    q = np.einsum("ni,cij,nj->nc", cm.basis.eval(li), m, cm.basis.eval(lo))
+    if cm.quantity == "f_cos":
+        q /= (li[:, 2] * lo[:, 2])[:, None]
+    q[(wi[:, 2] < 0) | (wo[:, 2] < 0)] = 0.0
+    return q[:, 0] if cm.is_scalar else q
+
+
+@pytest.mark.parametrize("b", BASES, ids=repr)
+@pytest.mark.parametrize("quantity", ["f_cos", "f"])
+@pytest.mark.parametrize("isotropic", [True, False])
+@pytest.mark.parametrize("channels", [None, 3])
+def test_matches_direct_product(b, quantity, isotropic, channels, rng):
+    cm = _random(b, rng, channels, quantity, isotropic)
+    assert cm.is_isotropic == isotropic
+    wi = random_directions(rng, 3000, upper=True)
+    wo = random_directions(rng, 3000, upper=True)
+    wi[:5, 2] = 0.0  # on the horizon, and just above it
+    wi[5:10, 2] = 1e-5
+    wi[:10] /= np.linalg.norm(wi[:10], axis=1)[:, None]
+    wo[:3] = [0.0, 0.0, 1.0]  # the pole, where the azimuth is undefined
+    if b.domain == "sphere":
+        wo[10:200, 2] *= -1  # below the horizon: 0
+    got = cm.eval(wi, wo)
+    ref = _direct(cm, wi, wo, 1e-3)
+    # dense: the same products summed in another order, rounding only; isotropic: the
+    # Chebyshev change of basis (least squares on 2k + 8 nodes) adds ~1e-12 relative at
+    # order 16 (observed 1.3e-12); the bound leaves ~8x headroom
+    tol = 1e-11 if isotropic else 1e-12
+    assert np.max(np.abs(got - ref)) <= tol * np.max(np.abs(ref))
+    assert got.shape == ((3000,) if channels is None else (3000, channels))
+    assert np.all(got[(wi[:, 2] < 0) | (wo[:, 2] < 0)] == 0.0)
+
+
+@pytest.mark.parametrize("isotropic", [True, False])
+def test_below_horizon_is_zero_for_hemisphere_bases(isotropic, rng):
+    cm = _random(basis.HemiZernike(4), rng, 2, "f_cos", isotropic)
+    wi = random_directions(rng, 500)  # both hemispheres
+    wo = random_directions(rng, 500)
+    got = cm.eval(wi, wo)
+    below = (wi[:, 2] < 0) | (wo[:, 2] < 0)
+    assert below.sum() > 300 and np.all(got[below] == 0.0)
+    assert np.all(got[~below] != 0.0)
+
+
+def test_broadcasting_and_flat_path(rng):
+    cm = _random(basis.HemiZernike(6), rng, 3, "f", True)
+    wi = random_directions(rng, (4, 1), upper=True)
+    wo = random_directions(rng, (1, 5), upper=True)
+    got = cm.eval(wi, wo)
+    assert got.shape == (4, 5, 3)
+    ref = _direct(cm, np.broadcast_to(wi, (4, 5, 3)).reshape(-1, 3),
+                  np.broadcast_to(wo, (4, 5, 3)).reshape(-1, 3), 1e-3)
+    np.testing.assert_allclose(got.reshape(-1, 3), ref, rtol=0,
+                               atol=1e-12 * np.max(np.abs(ref)))
+    ev = cm.evaluator()
+    a = np.ascontiguousarray(np.broadcast_to(wi, (4, 5, 3)).reshape(-1, 3))
+    b = np.ascontiguousarray(np.broadcast_to(wo, (4, 5, 3)).reshape(-1, 3))
+    out = np.empty((20, 3))
+    ev.eval_flat(a, b, out)
+    assert np.array_equal(out, got.reshape(-1, 3))
+    assert cm.eval(np.empty((0, 3)), np.empty((0, 3))).shape == (0, 3)
+
+
+def test_evaluator_is_built_once_per_min_cos(rng):
+    cm = _random(basis.HemiZernike(4), rng, None, "f_cos", True)
+    assert cm.evaluator() is cm.evaluator(min_cos=1e-3)
+    assert cm.evaluator(min_cos=0.1) is not cm.evaluator()
+    w = np.array([[0.6, 0.0, 0.8]])
+    assert cm.eval(w, w).shape == (1,)
+
+
+def test_dense_path_works_in_chunks(rng, monkeypatch):
+    # small chunks: several passes through the chunk loop must give the same values
+    cm = _random(basis.HemiHarmonics(6), rng, 3, "f_cos", False)
+    wi = random_directions(rng, 1000, upper=True)
+    wo = random_directions(rng, 1000, upper=True)
+    whole = cm.eval(wi, wo)
+    monkeypatch.setattr("basis.evaluate._DENSE_BYTES", 8 * 64 * 21 * 5)
+    parts = CoefficientMatrix(cm.basis, cm.matrix, cm.quantity, isotropic=False).eval(wi, wo)
+    np.testing.assert_allclose(parts, whole, rtol=1e-14, atol=1e-14 * np.max(np.abs(whole)))
+
+
+def test_errors(rng):
+    b = basis.HemiZernike(2)
+    x = rng.normal(size=(b.size, b.size))
+    cm = CoefficientMatrix(b, x + x.T, isotropic=False)
+    with pytest.raises(TypeError, match="cm must be a basis.CoefficientMatrix"):
+        Evaluator(np.eye(2))
+    for bad in (0.0, 1.0, -0.5):
+        with pytest.raises(ValueError, match=r"min_cos must lie in \(0, 1\)"):
+            cm.eval([0, 0, 1.0], [0, 0, 1.0], min_cos=bad)
+    with pytest.raises(ValueError, match="wi must be unit vectors"):
+        cm.eval([0, 0, 2.0], [0, 0, 1.0])
+    with pytest.raises(ValueError, match="broadcastable batch shapes"):
+        cm.eval(random_directions(rng, 3), random_directions(rng, 4))
+
+
+def test_compress_names_still_work(rng):
+    # compress.FastEvaluator and compress.evaluate from scatmodes 0.1 are the same machinery
+    cm = _random(basis.HemiZernike(3), rng, 3, "f_cos", True)
+    wi = random_directions(rng, 50, upper=True)
+    assert compress.FastEvaluator is Evaluator
+    assert np.array_equal(compress.evaluate(cm, wi, wi[::-1]), cm.eval(wi, wi[::-1]))
+    assert np.array_equal(compress.FastEvaluator(cm)(wi, wi[::-1]), cm.eval(wi, wi[::-1]))
