@@ -7,7 +7,7 @@ Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 
 from .evaluate import FastEvaluator, evaluate
 from .render import render_sphere, tonemap
-from .select import Environment, ScenePlan, for_scene, select_order
+from .scene import Environment, ScenePlan, for_scene, select_order
 from .store import load, save
 from .study import KINDS, METRICS, Study, errors, make_basis, pareto_front, reference_samples, study
 from .truncate import (

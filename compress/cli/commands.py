@@ -24,7 +24,7 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-KINDS = ("zernike", "harmonics", "harmonics-even", "sh")  # = compress.study.KINDS
+from basis import KINDS
 
 #: Parameters of each model in the help examples and in the hints of error messages.
 MODEL_EXAMPLES = {
@@ -244,7 +244,7 @@ def _bar(iterable: Any, args: argparse.Namespace, desc: str, total: int | None =
 
 
 def _basis(kind: str, order: int) -> Any:
-    from compress import make_basis
+    from basis import make_basis
 
     return make_basis(kind, order)
 
@@ -679,7 +679,3 @@ def main(argv: list[str] | None = None) -> int:
         except USER_ERRORS as exc:
             print(f"{prog}: error: {_message(exc)}", file=sys.stderr)
             return 2
-
-
-if __name__ == "__main__":
-    sys.exit(main())
