@@ -58,18 +58,3 @@ def test_radial_errors():
     with pytest.raises(TypeError, match="z must be an array of floats"):
         zb.radial(["a"])
     assert basis.SphericalHarmonics(2).radial([-1.0]).shape == (1, 9)
-
-
-@pytest.mark.parametrize("b", ALL + [basis.HemiZernike(0)], ids=repr)
-def test_make_basis_round_trips_kind(b):
-    assert b.kind in basis.KINDS
-    assert basis.make_basis(b.kind, b.order) == b
-
-
-def test_make_basis_errors():
-    with pytest.raises(ValueError, match="kind must be one of 'zernike', 'harmonics'"):
-        basis.make_basis("hemi_sh", 3)
-    with pytest.raises(ValueError, match="order must be >= 1 for kind='harmonics'"):
-        basis.make_basis("harmonics", 0)
-    with pytest.raises(TypeError, match="must be an integer"):
-        basis.make_basis("zernike", 2.0)
