@@ -14,25 +14,31 @@ Metrics (per channel, the table shows the largest over channels):
 
 =================  ==========================================================================
 ``l2``             cosine-weighted relative L2 error over all of H x H: ||q_hat - q|| / ||q||
-                   with q = f cos(theta_i) cos(theta_o) (seed-004 digest M2, relative; for
+                   with q = f cos(theta_i) cos(theta_o) (Ngan et al. 2005, relative; for
                    quantity "f_cos" it equals the Parseval truncation error of the projection,
                    up to the quadrature error of the test set)
-``max_abs``        max |f_hat - f| (1/sr)                                    [on the domain D]
-``rel_rms``        ||f_hat - f|| / ||f|| with weight cos^2(theta_i) (digest M3)          [D]
+``max_abs``        max |f_hat - f| (1/sr)                                               [D]
+``rel_rms``        ||f_hat - f|| / ||f|| with weight cos^2(theta_i)                     [D]
 ``log_rms``        RMS of log(1 + f cos theta_i) - log(1 + max(f_hat, 0) cos theta_i)
-                   (digest M4; negative values clamped, as a renderer would)            [D]
-``smape``          mean of 100 |f_hat - f| / (|f_hat| + |f|) in percent (seed 004 eq. 30,
-                   absolute values in the denominator so negative f_hat stay in [0, 100];
-                   0 where both vanish)                                                 [D]
+                   (negative values clamped, as a renderer would)                       [D]
+``smape``          mean of 100 |f_hat - f| / (|f_hat| + |f|) in percent (absolute values in
+                   the denominator so negative f_hat stay in [0, 100]; 0 where both
+                   vanish)                                                              [D]
 ``negative``       solid-angle fraction of H x H where f_hat < 0
 ``albedo``         max over theta_i in D of |a_hat(theta_i) - a(theta_i)|, both by the same
                    rule (isotropic test sets only; None otherwise)
 ``reciprocity``    max |f_hat(wi, wo) - f_hat(wo, wi)| / max |f_hat|                    [D]
+``*_all``          the same six pointwise metrics (``max_abs_all``, ``rel_rms_all``,
+                   ``log_rms_all``, ``smape_all``, ``albedo_all``, ``reciprocity_all``) on all
+                   of H x H, grazing pairs included
 =================  ==========================================================================
 
-D is the domain of seed 004: theta_i, theta_o < ``max_theta`` (default 1.4 rad = 80.2 deg);
-the pointwise metrics of f avoid the grazing band where f = q / (cos cos) is ill conditioned.
-Solid-angle weighted means are used throughout.
+D is the domain theta_i, theta_o < ``max_theta`` (default 1.4 rad = 80.2 deg) on which Ngan
+et al. (2005) compare fitted models, avoiding the grazing band where f = q / (cos cos) is
+ill conditioned; the ``_all`` columns show what that band costs. Pointwise metrics use f_hat
+as ``CoefficientMatrix.eval`` returns it by default (``min_cos = 1e-3``); ``l2``,
+``negative`` and the albedo use the expansion itself. Solid-angle weighted means are used
+throughout.
 """
 
 from __future__ import annotations
@@ -61,7 +67,12 @@ __all__ = ["KINDS", "METRICS", "Study", "Samples", "errors", "make_basis", "pare
 #: Basis kinds by name: the hemisphere Zernike functions, Westin's odd hemisphere harmonics,
 #: the even completion, and the full-sphere harmonics (BRDF zero below the horizon).
 #: Error columns of a study (see the module notes).
-METRICS = ("l2", "max_abs", "rel_rms", "log_rms", "smape", "negative", "albedo", "reciprocity")
+METRICS = ("l2", "max_abs", "rel_rms", "log_rms", "smape", "negative", "albedo", "reciprocity",
+           "max_abs_all", "rel_rms_all", "log_rms_all", "smape_all", "albedo_all",
+           "reciprocity_all")
+#: ``min_cos`` of :meth:`basis.CoefficientMatrix.eval` by default: the pointwise metrics
+#: measure f_hat as a user evaluates it.
+DEFAULT_MIN_COS = 1e-3
 #: Default test set: Gauss nodes per cosine, azimuth differences.
 NODES = (40, 80)
 #: Polar angle limit of the domain D of the pointwise metrics (seed 004: theta < 1.4 rad).
@@ -172,16 +183,31 @@ def _uniform_h(u: NDArray, v: NDArray) -> NDArray:
     return np.stack([s * np.cos(2 * np.pi * v), s * np.sin(2 * np.pi * v), u], axis=-1)
 
 
-def _represented(cm: CoefficientMatrix, ts: Samples) -> NDArray[np.float64]:
-    """f_hat at the test pairs as (n, channels); no grazing lift (min_cos tiny) so that
-    f_hat cos cos is exactly the expansion q_hat."""
+def _represented(cm: CoefficientMatrix, ts: Samples, min_cos: float = 1e-12
+                 ) -> NDArray[np.float64]:
+    """f_hat at the test pairs as (n, channels). The default tiny ``min_cos`` means no grazing
+    lift, so that f_hat cos cos is exactly the expansion q_hat; ``min_cos=DEFAULT_MIN_COS`` is
+    what ``cm.eval`` gives a user."""
     out = np.empty((ts.wi.shape[0], cm.channels))
-    cm.evaluator(min_cos=1e-12).eval_flat(ts.wi, ts.wo, out)
+    cm.evaluator(min_cos=min_cos).eval_flat(ts.wi, ts.wo, out)
     return out
 
 
 def errors(cm: CoefficientMatrix, ts: Samples) -> dict[str, float | None]:
-    """Every metric of :data:`METRICS` for ``cm`` on the test set ``ts`` (module notes)."""
+    """Every metric of :data:`METRICS` for ``cm`` on the test set ``ts`` (module notes).
+
+    Parameters
+    ----------
+    cm : basis.CoefficientMatrix
+    ts : Samples
+        From :func:`reference_samples`.
+
+    Returns
+    -------
+    dict
+        Metric name -> value (the largest over channels); ``albedo`` and ``albedo_all`` are
+        None for anisotropic test sets.
+    """
     fh = _represented(cm, ts)
     f = ts.values
     if f.shape[1] != fh.shape[1] and 1 not in (f.shape[1], fh.shape[1]):
@@ -193,39 +219,50 @@ def errors(cm: CoefficientMatrix, ts: Samples) -> dict[str, float | None]:
     q, qh = f * cc, fh * cc
     out: dict[str, float | None] = {}
     out["l2"] = _rel(np.sum(w * (qh - q) ** 2, axis=0), np.sum(w * q * q, axis=0))
-    d = ts.domain
-    fd, fhd, wd = f[d], fh[d], w[d]
-    zi = ts.wi[d, 2][:, None]
-    out["max_abs"] = float(np.max(np.abs(fhd - fd), initial=0.0))
-    out["rel_rms"] = _rel(np.sum(wd * zi**2 * (fhd - fd) ** 2, axis=0),
-                          np.sum(wd * zi**2 * fd**2, axis=0))
-    lg = np.log1p(fd * zi) - np.log1p(np.maximum(fhd, 0.0) * zi)
-    wsum = float(np.sum(wd)) or 1.0
-    out["log_rms"] = float(np.max(np.sqrt(np.sum(wd * lg * lg, axis=0) / wsum)))
-    den = np.abs(fhd) + np.abs(fd)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sm = np.where(den > 0, np.abs(fhd - fd) / np.where(den > 0, den, 1.0), 0.0)
-    out["smape"] = float(np.max(100.0 * np.sum(wd * sm, axis=0) / wsum))
     out["negative"] = float(np.max(np.sum(w * (fh < 0), axis=0) / np.sum(w)))
-    if ts.grid is not None:
-        nz, _, nphi = ts.grid
-        ww = ts.weights.reshape(ts.grid)
-        wz_i = ww.sum(axis=(1, 2)) / (2.0 * np.pi) ** 2  # Gauss weight of each z_i
-        wo_w = ww / (2.0 * np.pi * wz_i[:, None, None])  # the w_o rule alone
-        diff = ((fh - f) * ts.wo[:, 2:3]).reshape(nz, nz, nphi, -1)
-        alb = np.einsum("abp,abpc->ac", wo_w, diff)
-        rows = ts.wi.reshape(nz, nz, nphi, 3)[:, 0, 0, 2] > np.cos(MAX_THETA)
-        out["albedo"] = float(np.max(np.abs(alb[rows]), initial=0.0))
-    else:
-        out["albedo"] = None
-    sub = np.flatnonzero(d)[:: max(1, int(np.sum(d)) // 20000)]
-    a = _represented(cm, Samples(ts.wi[sub], ts.wo[sub], ts.weights[sub], f[sub], d[sub],
-                                 None, 0.0))
-    b = _represented(cm, Samples(ts.wo[sub], ts.wi[sub], ts.weights[sub], f[sub], d[sub],
-                                 None, 0.0))
-    scale = float(np.max(np.abs(a), initial=0.0)) or 1.0
-    out["reciprocity"] = float(np.max(np.abs(a - b), initial=0.0)) / scale
+    # pointwise metrics of f as a user evaluates it (cm.eval's default grazing rule)
+    fu = np.broadcast_to(_represented(cm, ts, DEFAULT_MIN_COS), f.shape)
+    every = np.ones(ts.wi.shape[0], dtype=bool)
+    for suffix, sel in (("", ts.domain), ("_all", every)):
+        out.update({k + suffix: v for k, v in _pointwise(f[sel], fu[sel], w[sel],
+                                                         ts.wi[sel, 2][:, None]).items()})
+        out["albedo" + suffix] = _albedo_error(fh - f, ts, sel)  # exact, as cm.albedo
+        sub = np.flatnonzero(sel)[:: max(1, int(np.sum(sel)) // 20000)]
+        pair = [Samples(a[sub], b[sub], ts.weights[sub], f[sub], sel[sub], None, 0.0)
+                for a, b in ((ts.wi, ts.wo), (ts.wo, ts.wi))]
+        a, b = (_represented(cm, s, DEFAULT_MIN_COS) for s in pair)
+        scale = float(np.max(np.abs(a), initial=0.0)) or 1.0
+        out["reciprocity" + suffix] = float(np.max(np.abs(a - b), initial=0.0)) / scale
     return out
+
+
+def _pointwise(f: NDArray, fh: NDArray, w: NDArray, zi: NDArray) -> dict[str, float]:
+    """max_abs, rel_rms, log_rms and smape of f_hat against f on the given pairs."""
+    out = {"max_abs": float(np.max(np.abs(fh - f), initial=0.0)),
+           "rel_rms": _rel(np.sum(w * zi**2 * (fh - f) ** 2, axis=0),
+                           np.sum(w * zi**2 * f**2, axis=0))}
+    lg = np.log1p(f * zi) - np.log1p(np.maximum(fh, 0.0) * zi)
+    wsum = float(np.sum(w)) or 1.0
+    out["log_rms"] = float(np.max(np.sqrt(np.sum(w * lg * lg, axis=0) / wsum)))
+    den = np.abs(fh) + np.abs(f)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sm = np.where(den > 0, np.abs(fh - f) / np.where(den > 0, den, 1.0), 0.0)
+    out["smape"] = float(np.max(100.0 * np.sum(w * sm, axis=0) / wsum))
+    return out
+
+
+def _albedo_error(diff: NDArray, ts: Samples, sel: NDArray) -> float | None:
+    """max over the incident nodes in ``sel`` of |int (f_hat - f) cos dw_o| (product rule)."""
+    if ts.grid is None:
+        return None
+    nz, _, nphi = ts.grid
+    ww = ts.weights.reshape(ts.grid)
+    wz_i = ww.sum(axis=(1, 2)) / (2.0 * np.pi) ** 2  # Gauss weight of each z_i
+    wo_w = ww / (2.0 * np.pi * wz_i[:, None, None])  # the w_o rule alone
+    d = (diff * ts.wo[:, 2:3]).reshape(nz, nz, nphi, -1)
+    alb = np.einsum("abp,abpc->ac", wo_w, d)
+    rows = sel.reshape(nz, nz, nphi).any(axis=(1, 2))
+    return float(np.max(np.abs(alb[rows]), initial=0.0))
 
 
 def _rel(num: NDArray, den: NDArray) -> float:

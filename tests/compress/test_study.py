@@ -46,8 +46,9 @@ def test_lambert_metrics_vanish():
     e = errors(cm, ts)
     # exact representation: rounding only (values ~0.16, relative ~1e-15)
     for m in ("l2", "rel_rms", "log_rms", "smape", "negative", "reciprocity"):
-        assert e[m] < 1e-12, m
+        assert e[m] < 1e-12 and e.get(m + "_all", 0.0) < 1e-12, m
     assert e["max_abs"] < 1e-14 and e["albedo"] < 1e-14
+    assert e["max_abs_all"] < 1e-14 and e["albedo_all"] < 1e-14
 
 
 def test_albedo_error_against_closed_form():
@@ -128,4 +129,18 @@ def test_select_order():
 
 def test_metric_names():
     assert METRICS == ("l2", "max_abs", "rel_rms", "log_rms", "smape", "negative", "albedo",
-                       "reciprocity")
+                       "reciprocity", "max_abs_all", "rel_rms_all", "log_rms_all", "smape_all",
+                       "albedo_all", "reciprocity_all")
+
+
+def test_whole_hemisphere_metrics_see_the_grazing_band():
+    # Phong in HemiZernike(8) as f_cos: inside D the division by cos cos is harmless, on all of
+    # H x H it amplifies the truncation error (the failure the _all columns exist to show)
+    brdf = Phong(0.3, 0.4, 20)
+    ts = reference_samples(brdf, nodes=NODES)
+    with pytest.warns(RuntimeWarning, match="misses"):
+        cm = project(brdf, basis.HemiZernike(8), quantity="f_cos")
+    e = errors(cm, ts)
+    assert e["max_abs_all"] > 10 * e["max_abs"]
+    assert e["rel_rms_all"] > e["rel_rms"]
+    assert e["albedo_all"] >= e["albedo"]
