@@ -49,7 +49,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from basis.jit import njit, pjit, prange
 
-from .trace import _grid_step
+from ._paths import _ESCAPED, _HIT, _LOST, _grid_step
 
 __all__ = ["BVH", "Mesh"]
 
@@ -60,9 +60,6 @@ LEAF = 4
 
 #: the SAH build keeps at most this many primitives in a leaf (when no split pays off)
 MAX_LEAF = 16
-
-#: status codes of _periodic_hit (the same values as trace._intersect)
-_HIT, _ESCAPED, _LOST = 0, 1, 2
 
 #: traversal stack entries; a tree with leaves down to depth D needs at most D of them
 _STACK = 64

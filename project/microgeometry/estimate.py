@@ -32,9 +32,11 @@ from basis import Basis, CoefficientMatrix
 from basis.jit import pjit, prange
 
 from ..io import atomic_path
+from ._checks import _positive_int, _seed
+from ._paths import MAX_BOUNCES, MAX_STEPS, _alloc, incident_directions
 from .scene import Scene
 from .surface import Heightfield
-from .trace import MAX_BOUNCES, MAX_STEPS, _alloc, _positive_int, _run, _seed, incident_directions
+from .trace import _run
 
 __all__ = ["SimulationResult", "merge", "simulate"]
 

@@ -1,12 +1,16 @@
 """Facet materials of the microgeometry simulator (one material per surface).
 
 Each material hands the tracer kernel a code and a small parameter vector; the scattering
-itself happens inside the numba kernel (``trace.py``) or, for :class:`MicroBRDF`, in batches.
+itself happens inside the numba kernels (the facet events of ``_paths.py``) or, for
+:class:`MicroBRDF`, in batches (``scatter.py``).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from ._checks import _number
+from .scatter import FacetSampler
 
 __all__ = ["Dielectric", "Diffuse", "Material", "MicroBRDF", "Mirror"]
 
@@ -130,8 +134,6 @@ class MicroBRDF(Material):
     code = MICRO
 
     def __init__(self, brdf: object) -> None:
-        from .scatter import FacetSampler
-
         if not (hasattr(brdf, "eval") and hasattr(brdf, "channels")):
             raise TypeError(f"brdf must be a BRDF (eval, channels, isotropic), got "
                             f"{type(brdf).__name__}")
@@ -206,13 +208,3 @@ class Dielectric(Material):
         if self.absorption == 0.0:
             return f"Dielectric({self.ior:g})"
         return f"Dielectric({self.ior:g}, absorption={self.absorption:g})"
-
-
-def _number(value: object, name: str, *, strict: bool) -> float:
-    try:
-        v = float(value)  # type: ignore[arg-type]
-    except (TypeError, ValueError):
-        raise TypeError(f"{name} must be a number, got {value!r}") from None
-    if not np.isfinite(v) or (v <= 0 if strict else v < 0):
-        raise ValueError(f"{name} must be finite and {'>' if strict else '>='} 0, got {value!r}")
-    return v

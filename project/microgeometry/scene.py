@@ -23,10 +23,9 @@ from numpy.typing import ArrayLike, NDArray
 
 from basis.jit import pjit, prange
 
-from .bvh import _HIT, _LOST, BVH, CYLINDER, SPHERE, TRIANGLE, TUBE, Mesh, _periodic_hit
-from .materials import DIELECTRIC, MICRO, Material, Mirror
-from .surface import Heightfield
-from .trace import (
+from ._paths import (
+    _HIT,
+    _LOST,
     _TAG_RAY,
     ROULETTE,
     _attenuate,
@@ -37,6 +36,9 @@ from .trace import (
     _store_path,
     _stream,
 )
+from .bvh import BVH, CYLINDER, SPHERE, TRIANGLE, TUBE, Mesh, _periodic_hit
+from .materials import DIELECTRIC, MICRO, Material, MicroBRDF, Mirror
+from .surface import Heightfield
 from .wavefront import run_scene_wavefront
 
 __all__ = ["Scene", "brushed_metal"]
@@ -446,8 +448,6 @@ def brushed_metal(radius: float, spacing: float, *, height: float = 0.0,
 def _rough_metal(material: Material | None, roughness: object) -> Material:
     """MicroBRDF(CookTorrance(0, roughness)) with the Fresnel of the Mirror ``material``."""
     from project.models import CookTorrance
-
-    from .materials import MicroBRDF
 
     ok = isinstance(roughness, (int, float, np.number)) and not isinstance(roughness, bool)
     m = float(roughness) if ok else np.nan

@@ -1,15 +1,12 @@
-"""The numba ray tracer of periodic height fields: traversal, facet scattering, roulette.
+"""Paths of rays through a specimen: :func:`trace` and :class:`Paths`, and the numba path loop
+of height fields.
 
-Traversal: the max-height mip pyramid of :class:`~project.microgeometry.Heightfield` is walked
-per ray (a stack-free quadtree walk, as in "maximum mipmap" height-field ray casting): at
-level L the ray segment inside the current node is skipped if it stays above the node's max
-height (then the walk climbs one level), otherwise it descends; at level 0 the two triangles
-of the cell are intersected exactly (the surface is piecewise linear along the segment).
-Coordinates are unwrapped (periodic tiling) and node indices are taken modulo the grid.
-
-Random numbers: every ray has its own counter-based stream (SplitMix64 of seed, stream tag
-and the global ray index), so results do not depend on the number of threads or on how the
-rays are split into chunks.
+``_trace_kernel`` follows every ray from its start above the surface through the max-pyramid
+walk to the next facet, the facet event (Fresnel mirror or cosine-diffuse bounce, then
+Russian roulette) and the next origin, until it escapes, dies or is cut off. These pieces,
+and the per-ray random streams, are the shared kernels of ``_paths.py``; a
+:class:`~project.microgeometry.Scene` is traced by its own loop (``scene.py``) and
+:class:`~project.microgeometry.MicroBRDF` facets bounce by bounce (``wavefront.py``).
 """
 
 from __future__ import annotations
@@ -19,29 +16,32 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis.jit import njit, pjit, prange
+from basis.jit import pjit, prange
 from basis.validation import as_directions
 
-from .materials import MICRO, MIRROR
+from ._checks import _positive_int, _seed
+from ._paths import (
+    _ESCAPED,
+    _LOST,
+    _TAG_RAY,
+    MAX_BOUNCES,
+    MAX_STEPS,
+    ROULETTE,
+    _alloc,
+    _intersect,
+    _launch,
+    _next_origin,
+    _scatter,
+    _store_path,
+    _stream,
+)
+from ._paths import incident_directions as incident_directions  # its old home: still importable
+from .materials import MICRO
+from .scene import Scene
 from .surface import Heightfield
+from .wavefront import run_wavefront
 
 __all__ = ["Paths", "trace"]
-
-_GOLD = np.uint64(0x9E3779B97F4A7C15)
-_M1 = np.uint64(0xBF58476D1CE4E5B9)
-_M2 = np.uint64(0x94D049BB133111EB)
-_TAG_RAY = 1
-_TAG_INCIDENT = 2
-
-#: status codes of _intersect
-_HIT, _ESCAPED, _LOST = 0, 1, 2
-
-#: default caps: facet interactions per path, traversal steps per segment
-MAX_BOUNCES = 10_000
-MAX_STEPS = 1_000_000
-
-#: Russian roulette starts below this path weight (survivors continue with this weight)
-ROULETTE = 0.05
 
 
 class Paths(NamedTuple):
@@ -92,8 +92,6 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
     >>> (p.directions[0] + 0.0).round(12).tolist(), p.weights.tolist()
     ([-0.6, 0.0, 0.8], [1.0, 1.0, 1.0])
     """
-    from .scene import Scene  # scene.py builds on this module
-
     if not isinstance(surface, (Heightfield, Scene)):
         raise TypeError(f"surface must be a Heightfield or a Scene, got "
                         f"{type(surface).__name__}")
@@ -110,33 +108,11 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
     return Paths(*out)
 
 
-def _positive_int(value: object, name: str) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
-        raise TypeError(f"{name} must be an integer, got {value!r}")
-    if value <= 0:
-        raise ValueError(f"{name} must be > 0, got {value}")
-    return int(value)
-
-
-def _seed(seed: object) -> np.uint64:
-    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)):
-        raise TypeError(f"seed must be an integer, got {seed!r}")
-    if not 0 <= seed < 2**64:
-        raise ValueError(f"seed must be in [0, 2**64), got {seed}")
-    return np.uint64(seed)
-
-
-def _alloc(n: int) -> tuple:
-    return (np.empty((n, 3)), np.empty(n), np.empty(n, np.int64), np.empty(n), np.empty(n))
-
-
 def _run(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64, start: int,
          out: tuple, max_bounces: int = MAX_BOUNCES, max_steps: int = MAX_STEPS) -> None:
     """Trace ``per`` rays for each incident direction in ``dirs`` (B, 3); rays of direction b
     are rows b * per ... (b + 1) * per - 1 of the outputs, global ray index start + row."""
     if surface.material.code == MICRO:
-        from .wavefront import run_wavefront
-
         run_wavefront(surface, dirs, per, seed, start, out, max_bounces, max_steps)
         return
     h = surface.heights
@@ -145,336 +121,6 @@ def _run(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64, start: 
                   surface._pyramid, surface._offsets, surface._levels, sx, sy,
                   float(h.min()), float(h.max()), surface.material.code,
                   surface.material._params(), ROULETTE, max_bounces, max_steps, *out)
-
-
-def incident_directions(count: int, seed: np.uint64, start: int, cosine: bool) -> NDArray:
-    """(count, 3) incident directions: cosine (pdf z / pi) or uniform (pdf 1 / (2 pi))."""
-    out = np.empty((count, 3))
-    _incident_kernel(seed, np.uint64(start), cosine, out)
-    return out
-
-
-# -- random numbers -------------------------------------------------------------------------
-
-@njit
-def _mix64(z):
-    # SplitMix64 finaliser (Steele, Lea & Flood 2014): a bijection of uint64 with good avalanche
-    z = (z ^ (z >> np.uint64(30))) * _M1
-    z = (z ^ (z >> np.uint64(27))) * _M2
-    return z ^ (z >> np.uint64(31))
-
-
-@njit
-def _stream(seed, index, tag):
-    # initial state of the stream (seed, tag, index); index is a uint64
-    return _mix64(_mix64(seed ^ (np.uint64(tag) * _GOLD)) + index)
-
-
-@njit
-def _uniform(s):
-    # one double in [0, 1) from the top 53 bits; returns (value, new state)
-    s = s + _GOLD
-    return float(_mix64(s) >> np.uint64(11)) * (1.0 / 9007199254740992.0), s
-
-
-@njit
-def _incident_kernel(seed, start, cosine, out):
-    # out (B, 3) unit vectors with z in (0, 1]; serial: a few thousand per call at most
-    for i in range(out.shape[0]):
-        s = _stream(seed, start + np.uint64(i), _TAG_INCIDENT)
-        u1, s = _uniform(s)
-        u2, s = _uniform(s)
-        z = np.sqrt(1.0 - u1) if cosine else 1.0 - u1
-        r = np.sqrt(max(0.0, (1.0 - z) * (1.0 + z)))
-        phi = 2.0 * np.pi * u2
-        out[i, 0] = r * np.cos(phi)
-        out[i, 1] = r * np.sin(phi)
-        out[i, 2] = z
-
-
-# -- facet optics -----------------------------------------------------------------------------
-
-@njit
-def _fresnel1(u, n, k):
-    # exact unpolarised Fresnel of index n + i k at cos = u (as project.models._fresnel);
-    # n = 0 flags "F = 1"
-    if n == 0.0:
-        return 1.0
-    s2 = (1.0 - u) * (1.0 + u)
-    t = n * n - k * k - s2
-    nk2 = (n * k) ** 2
-    r = np.sqrt(t * t + 4.0 * nk2)
-    big = 0.5 * (r + t) if t >= 0.0 else 0.5 * (r - t)  # the cancellation-free one
-    small = nk2 / big if big > 0.0 else 0.0
-    a2 = big if t >= 0.0 else small
-    b2 = small if t >= 0.0 else big
-    a = np.sqrt(a2)
-    den_s = (a + u) ** 2 + b2
-    rs = ((a - u) ** 2 + b2) / den_s if den_s > 0.0 else 0.0
-    au = a * u
-    bu2 = b2 * u * u
-    den_p = (au + s2) ** 2 + bu2
-    rp = rs * ((au - s2) ** 2 + bu2) / den_p if den_p > 0.0 else rs
-    return min(1.0, max(0.0, 0.5 * (rs + rp)))
-
-
-@njit
-def _cosine_sample(nx, ny, nz, u1, u2):
-    # cosine-distributed unit vector about the unit normal n; orthonormal frame of
-    # Duff et al. 2017 (branch-free, no singularity except the sign switch)
-    sign = 1.0 if nz >= 0.0 else -1.0
-    a = -1.0 / (sign + nz)
-    b = nx * ny * a
-    r = np.sqrt(u1)
-    phi = 2.0 * np.pi * u2
-    x = r * np.cos(phi)
-    y = r * np.sin(phi)
-    z = np.sqrt(max(0.0, 1.0 - u1))
-    dx = x * (1.0 + sign * nx * nx * a) + y * b + z * nx
-    dy = x * (sign * b) + y * (sign + ny * ny * a) + z * ny
-    dz = x * (-sign * nx) + y * (-ny) + z * nz
-    inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-    return dx * inv, dy * inv, dz * inv
-
-
-# -- traversal --------------------------------------------------------------------------------
-
-@njit
-def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
-    # First crossing of the ray from above the two triangles of cell (cx, cy) (unwrapped
-    # position ix, iy) on [t0, t1]. The surface along the segment is piecewise linear with
-    # one kink where it crosses the diagonal u = v, so the signed height f = z_ray - z_surf
-    # is exact at the piece ends and linear in between.
-    ny, nx = h.shape
-    i1 = cx + 1 if cx + 1 < nx else 0
-    j1 = cy + 1 if cy + 1 < ny else 0
-    h00 = h[cy, cx]
-    h10 = h[cy, i1]
-    h01 = h[j1, cx]
-    h11 = h[j1, i1]
-    du = dx / sx
-    dv = dy / sy
-    ua = (ox + t0 * dx - ix * sx) / sx
-    va = (oy + t0 * dy - iy * sy) / sy
-    g0 = ua - va
-    gd = du - dv
-    ts = t1
-    if gd != 0.0:
-        tc = t0 - g0 / gd
-        if t0 < tc < t1:
-            ts = tc
-    ta = t0
-    for piece in range(2):
-        tb = ts if piece == 0 else t1
-        if piece == 1 and tb <= ta:
-            break
-        gm = g0 + (0.5 * (ta + tb) - t0) * gd
-        if gm >= 0.0:  # triangle A (00, 10, 11)
-            a1 = h10 - h00
-            a2 = h11 - h10
-        else:  # triangle B (00, 11, 01)
-            a1 = h11 - h01
-            a2 = h01 - h00
-        fa = oz + ta * dz - (h00 + a1 * (ua + (ta - t0) * du) + a2 * (va + (ta - t0) * dv))
-        fb = oz + tb * dz - (h00 + a1 * (ua + (tb - t0) * du) + a2 * (va + (tb - t0) * dv))
-        if fa > 0.0 and fb <= 0.0:
-            th = ta + (tb - ta) * fa / (fa - fb)
-            gx = -a1 / sx
-            gy = -a2 / sy
-            inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
-            return True, th, gx * inv, gy * inv, inv
-        ta = tb
-    return False, 0.0, 0.0, 0.0, 1.0
-
-
-@njit(inline="always")
-def _grid_step(o, d, p, size, tol):
-    """Along one axis of a grid of cells of width ``size``: the cell index of the ray
-    (origin o, direction d) at its position p, and the distance t at which it leaves that
-    cell. On a cell boundary (within tol * size) the cell it is entering is taken, else the
-    walk would make zero-length steps."""
-    i = int(np.floor(p / size))
-    if d > 0.0:
-        if (i + 1) * size - p <= tol * size:
-            i += 1
-        return i, ((i + 1) * size - o) / d
-    if d < 0.0:
-        if p - i * size <= tol * size:
-            i -= 1
-        return i, (i * size - o) / d
-    return i, np.inf
-
-
-@njit
-def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, max_steps):
-    # Walk the max pyramid from t = 0; returns (status, t, normal x, y, z).
-    ny, nx = h.shape
-    tol = 1e-9 * (hmax - hmin + sx + sy)
-    t = 0.0
-    lev = top
-    for _ in range(max_steps):
-        z = oz + t * dz
-        if dz >= 0.0 and z > hmax:
-            return _ESCAPED, t, 0.0, 0.0, 0.0
-        if dz < 0.0 and z < hmin - tol:
-            return _LOST, t, 0.0, 0.0, 0.0  # passed through the surface (rounding)
-        scale = float(1 << lev)
-        ix, tx = _grid_step(ox, dx, ox + t * dx, sx * scale, 1e-9)
-        iy, ty = _grid_step(oy, dy, oy + t * dy, sy * scale, 1e-9)
-        t1 = min(tx, ty)
-        # never step past the slab [hmin, hmax] (vertical rays have tx = ty = inf)
-        if dz < 0.0:
-            t1 = min(t1, (hmin - 2.0 * tol - oz) / dz)
-        elif dz > 0.0:
-            t1 = min(t1, (hmax + tol - oz) / dz)
-        wl = nx >> lev
-        hl = ny >> lev
-        cx = ix % wl
-        cy = iy % hl
-        zn = pyr[offs[lev] + cy * wl + cx]
-        if min(z, oz + t1 * dz) > zn:
-            t = t1
-            if lev < top:
-                lev += 1
-            continue
-        if lev > 0:
-            lev -= 1
-            continue
-        hit, th, gx, gy, gz = _cell(ix, iy, cx, cy, t, t1, ox, oy, oz, dx, dy, dz, h, sx, sy)
-        if hit:
-            return _HIT, th, gx, gy, gz
-        t = t1
-        if lev < top:
-            lev += 1
-    return _LOST, t, 0.0, 0.0, 0.0
-
-
-@njit(inline="always")
-def _launch(dirs, b, zs, lx, ly, s):
-    """Start of a ray of incidence dirs[b]: above the highest point z = zs on the line through
-    a uniform point of the mean plane's period (lx x ly), travelling towards the surface."""
-    u1, s = _uniform(s)
-    u2, s = _uniform(s)
-    k = zs / dirs[b, 2]
-    ox = u1 * lx + k * dirs[b, 0]
-    oy = u2 * ly + k * dirs[b, 1]
-    ox -= np.floor(ox / lx) * lx
-    oy -= np.floor(oy / ly) * ly
-    return ox, oy, zs, -dirs[b, 0], -dirs[b, 1], -dirs[b, 2], s
-
-
-@njit(inline="always")
-def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, front, w, absorbed, rr, s):
-    """One facet event for a ray travelling along d that hit a facet of normal g (facing the
-    ray; ``front`` says whether the ray arrived on the primitive's outer side): mirror
-    reflection weighted by Fresnel, or a cosine-distributed diffuse bounce weighted by the
-    albedo, then Russian roulette (survive with probability w / rr at weight rr).
-    Returns the new direction, weight (0 when the ray dies), absorbed energy and stream."""
-    ci = -(dx * gx + dy * gy + dz * gz)
-    if code == MIRROR:
-        f = _fresnel1(min(1.0, max(0.0, ci)), ior, kext)
-        dx += 2.0 * ci * gx
-        dy += 2.0 * ci * gy
-        dz += 2.0 * ci * gz
-        inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-        dx *= inv
-        dy *= inv
-        dz *= inv
-    else:
-        f = alb
-        u1, s = _uniform(s)
-        u2, s = _uniform(s)
-        dx, dy, dz = _cosine_sample(gx, gy, gz, u1, u2)
-    absorbed += w * (1.0 - f)
-    w, s = _roulette(w * f, rr, s)
-    return dx, dy, dz, w, absorbed, s
-
-
-@njit(inline="always")
-def _roulette(w, rr, s):
-    """Russian roulette: a weight below rr survives with probability w / rr at weight rr
-    (unbiased: the expected weight is w), else becomes 0. One draw, only when w < rr."""
-    if w < rr:
-        u1, s = _uniform(s)
-        w = rr if u1 * rr < w else 0.0
-    return w, s
-
-
-@njit(inline="always")
-def _dielectric(ior, dx, dy, dz, gx, gy, gz, front, w, rr, s):
-    """One event at a smooth dielectric facet of relative index ``ior`` for a ray along d
-    that hit it with normal g facing the ray; ``front``: the ray arrives from outside (it
-    would enter, relative index n) or from inside (it would leave, 1 / n).
-
-    Reflects with the exact unpolarised Fresnel probability F (_fresnel1 with k = 0: it
-    handles relative indices below 1 and gives F = 1 beyond the critical angle), else
-    refracts by Snell's law. Choosing by probability F instead of splitting the weight
-    keeps the weight unchanged (unbiased: the expected contribution of each branch is F,
-    resp. 1 - F, times the weight), so only absorption along segments (_attenuate) and
-    roulette change it. One uniform draw for the choice, then _roulette.
-    Returns (new direction, weight, stream, refracted)."""
-    ci = min(1.0, max(0.0, -(dx * gx + dy * gy + dz * gz)))
-    eta = ior if front else 1.0 / ior  # n2 / n1 across the facet
-    f = _fresnel1(ci, eta, 0.0)
-    u, s = _uniform(s)
-    refracted = u >= f  # never under total internal reflection (F = 1 > u)
-    if refracted:
-        # t = d / eta + (ci / eta - ct) g: the tangential part shrinks by 1 / eta and the
-        # normal part, -ct along g, points through the facet
-        r = 1.0 / eta
-        ct = np.sqrt(max(0.0, 1.0 - r * r * (1.0 - ci) * (1.0 + ci)))
-        a = r * ci - ct
-        dx = r * dx + a * gx
-        dy = r * dy + a * gy
-        dz = r * dz + a * gz
-    else:
-        dx += 2.0 * ci * gx
-        dy += 2.0 * ci * gy
-        dz += 2.0 * ci * gz
-    inv = 1.0 / np.sqrt(dx * dx + dy * dy + dz * dz)
-    w, s = _roulette(w, rr, s)
-    return dx * inv, dy * inv, dz * inv, w, s, refracted
-
-
-@njit(inline="always")
-def _attenuate(sigma, t, w, absorbed):
-    """Beer-Lambert loss over a segment of length t in a medium of absorption sigma: the
-    weight keeps exp(-sigma t), the rest is added to ``absorbed`` (the two sum to the old
-    weight up to rounding). Returns (w, absorbed)."""
-    if sigma > 0.0:
-        loss = -w * np.expm1(-sigma * t)
-        absorbed += loss
-        w -= loss
-    return w, absorbed
-
-
-@njit(inline="always")
-def _next_origin(px, py, pz, side, gx, gy, gz, lx, ly):
-    """Origin of the next segment: the hit point moved by ``side`` along the facet normal g
-    (positive: the side the normal faces) and wrapped into the period [0, lx) x [0, ly)."""
-    ox = px + side * gx
-    oy = py + side * gy
-    ox -= np.floor(ox / lx) * lx
-    oy -= np.floor(oy / ly) * ly
-    return ox, oy, pz + side * gz
-
-
-@njit(inline="always")
-def _store_path(r, w, dx, dy, dz, bounces, absorbed, lost, out_dir, out_w, out_b, out_abs,
-                out_lost):
-    """Write ray r's exit (direction, or +z for a dead ray), weight and bookkeeping."""
-    if w > 0.0:
-        out_dir[r, 0] = dx
-        out_dir[r, 1] = dy
-        out_dir[r, 2] = dz
-    else:
-        out_dir[r, 0] = 0.0
-        out_dir[r, 1] = 0.0
-        out_dir[r, 2] = 1.0
-    out_w[r] = w
-    out_b[r] = bounces
-    out_abs[r] = absorbed
-    out_lost[r] = lost
 
 
 @pjit

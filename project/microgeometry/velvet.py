@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .materials import DIELECTRIC, Dielectric, Diffuse, Material, _number
+from ._checks import _number, _positive_int, _seed
+from .materials import DIELECTRIC, Dielectric, Diffuse, Material
 from .scene import Scene
-from .trace import _positive_int, _seed
 
 __all__ = ["velvet"]
 

@@ -11,7 +11,7 @@ all live rays are advanced one facet interaction at a time:
    :class:`~project.microgeometry.Scene` with its periodic BVH (``_scene_step_kernel``, as
    ``scene._scene_kernel``), which also records the material of the hit primitive;
 2. hits on :class:`Mirror` and :class:`Diffuse` facets (scene parts): numba
-   (``_facet_kernel``), the path tracers' own facet event ``trace._scatter`` with its
+   (``_facet_kernel``), the path tracers' own facet event ``_paths._scatter`` with its
    Fresnel, cosine sampling and Russian roulette;
 3. hits on MicroBRDF facets, one batch per distinct MicroBRDF (a loop over materials, not
    rays): numpy (:class:`~project.microgeometry.scatter.FacetSampler`): express w_i in each
@@ -44,11 +44,7 @@ from numpy.typing import NDArray
 
 from basis.jit import njit, pjit, prange
 
-from .bvh import BVH, _periodic_hit
-from .materials import DIFFUSE, MICRO, MIRROR, Material
-from .scatter import FacetSampler, facet_frame
-from .surface import Heightfield
-from .trace import (
+from ._paths import (
     _ESCAPED,
     _HIT,
     _LOST,
@@ -61,6 +57,10 @@ from .trace import (
     _stream,
     _uniform,
 )
+from .bvh import BVH, _periodic_hit
+from .materials import DIFFUSE, MICRO, MIRROR, Material
+from .scatter import FacetSampler, facet_frame
+from .surface import Heightfield
 
 __all__ = ["run_scene_wavefront", "run_wavefront"]
 
@@ -227,7 +227,7 @@ def _tangent_frame(g: NDArray, a: NDArray) -> tuple[NDArray, NDArray]:
 @njit
 def _start_kernel(dirs, per, seed, start, zs, lx, ly, o, d, s):
     # dirs (B, 3) incident directions; o, d (B * per, 3) out: first origins and directions of
-    # trace._launch (the start of the path tracers); s (B * per,) out: stream states after it
+    # _paths._launch (the start of the path tracers); s (B * per,) out: stream states after it
     # serial: a few microseconds per thousand rays, less than a parallel launch costs
     for r in range(dirs.shape[0] * per):
         ox, oy, oz, dx, dy, dz, st = _launch(dirs, r // per, zs, lx, ly,

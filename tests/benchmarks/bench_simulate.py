@@ -291,7 +291,8 @@ def scene_rows(args: argparse.Namespace) -> None:
     """Brushed metal and velvet: ours (periodic BVH) vs Mitsuba on the same primitives."""
     from basis import HemiZernike
     from project.microgeometry import Mirror, brushed_metal, simulate
-    from project.microgeometry.trace import MAX_BOUNCES, MAX_STEPS, _alloc, incident_directions
+    from project.microgeometry._paths import _alloc  # private: benchmarks drive the runners
+    from project.microgeometry.trace import MAX_BOUNCES, MAX_STEPS, incident_directions
 
     specimens = {"brushed metal": brushed_metal(0.4, 1.0, material=Mirror(0.96, 6.69))}
     try:
@@ -364,7 +365,8 @@ def main(argv: list[str] | None = None) -> int:
 def heightfield_rows(args: argparse.Namespace) -> None:
     from basis import HemiZernike
     from project.microgeometry import GaussianSurface, simulate
-    from project.microgeometry.trace import _alloc, _run, incident_directions
+    from project.microgeometry._paths import _alloc  # private: benchmarks drive the runners
+    from project.microgeometry.trace import _run, incident_directions  # _run: private, as _alloc
 
     surface = GaussianSurface(1.0, 6.5, resolution=args.size, seed=1)
     basis = HemiZernike(args.order)

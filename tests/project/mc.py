@@ -2,7 +2,8 @@
 
 Statistical assertions compare in units of the batch-means standard error of
 :class:`~project.microgeometry.SimulationResult` (k = ``K_SIGMA``); the rotation checks use
-the exact action of the +90 degree turn about z on a hemisphere basis.
+the exact action of the +90 degree turn about z on a hemisphere basis. ``fresnel_hecht`` is
+the textbook Fresnel reference of the dielectric tests.
 """
 
 from __future__ import annotations
@@ -59,3 +60,22 @@ def assert_anisotropic_and_turns(basis, rx, ry, rrot):
     m = np.abs(basis.azimuthal)
     off = m[:, None] != m[None, :]
     assert np.max(np.abs(rx.matrix.matrix[off]) / rx.stderr[off]) > 10 * K_SIGMA
+
+
+def mean_z(x: np.ndarray, ref: float) -> float:
+    """|mean(x) - ref| in standard errors of the mean (inf-safe for constant x)."""
+    se = x.std() / np.sqrt(x.size)
+    return abs(x.mean() - ref) / se if se > 0 else (0.0 if x.mean() == ref else np.inf)
+
+
+def fresnel_hecht(cos_i: float, n: float) -> float:
+    """Unpolarised reflectance of a real relative index n (either side), 1 beyond the
+    critical angle: r_s = (cos_i - n cos_t) / (cos_i + n cos_t), r_p = (n cos_i - cos_t) /
+    (n cos_i + cos_t), cos_t from Snell's law."""
+    sin_t2 = (1.0 - cos_i * cos_i) / (n * n)
+    if sin_t2 >= 1.0:
+        return 1.0
+    cos_t = np.sqrt(1.0 - sin_t2)
+    rs = (cos_i - n * cos_t) / (cos_i + n * cos_t)
+    rp = (n * cos_i - cos_t) / (n * cos_i + cos_t)
+    return 0.5 * (rs * rs + rp * rp)

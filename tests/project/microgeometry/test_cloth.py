@@ -3,8 +3,8 @@ right heights), energy accounting, the 90-degree symmetry of the square weave, a
 effect of the thread's anisotropy; bad input.
 
 Monte Carlo assertions use k = 5 standard errors (K_SIGMA) with fixed seeds, and the
-rotation helpers of test_scene.py; the numbers quoted in comments were measured with these
-seeds.
+rotation helpers of tests/project/mc.py; the numbers quoted in comments were measured with
+these seeds.
 """
 
 from __future__ import annotations

@@ -1,11 +1,12 @@
-"""Analytic primitives of the BVH (spheres, finite tubes with or without caps), the SAH build
-and its stack-depth guarantee, and the Scene methods that add spheres and tubes.
+"""bvh.py: meshes and OBJ input, and the BVH -- triangles, x/y cylinders, spheres and finite
+tubes (with or without caps) against brute force, the outer side of every primitive, the
+periodic tiling, the SAH build and its stack-depth guarantee, and bad input.
 
-References are independent numpy brute force: textbook quadratics solved in a local frame of
-each primitive (not the cross-product form of the kernels), discs by a plane test, periodic
-copies laid out explicitly. Distances agree to ~1e-10 (both sides round at ~1e-15 relative
-on distances of order 1; the textbook quadratic loses a few digits to cancellation, whence
-the margin). Monte Carlo assertions use k = 5 standard errors; seeds are fixed.
+References are independent numpy brute force: every ray against every primitive (Cramer's
+rule for triangles, textbook quadratics solved in a local frame of each primitive -- not the
+cross-product form of the kernels --, discs by a plane test), with the periodic copies laid
+out explicitly. Distances agree to ~1e-10 (both sides round at ~1e-15 relative on distances
+of order 1; the textbook quadratic loses a few digits to cancellation, whence the margin).
 """
 
 from __future__ import annotations
@@ -13,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from basis import HemiZernike
-from project.microgeometry import Diffuse, Mirror, Scene, simulate, trace
+# private _STACK, _build, _periodic_hit, _prim_bounds: the build's depth guarantee, the
+# primitive bounds and the walk's front flag are checked directly
 from project.microgeometry.bvh import (
     _STACK,
     BVH,
@@ -22,15 +23,47 @@ from project.microgeometry.bvh import (
     SPHERE,
     TRIANGLE,
     TUBE,
+    Mesh,
     _build,
     _periodic_hit,
     _prim_bounds,
 )
 
-K_SIGMA = 5.0
-
-
 # -- brute-force references -------------------------------------------------------------------
+
+def brute_triangles(o, d, tri):
+    """(n,) first hit distance of rays (n, 3) with triangles (T, 3, 3), by Cramer's rule on
+    o + t d = v0 + u e1 + v e2 for every pair (a different formulation from the kernel's)."""
+    e1 = tri[:, 1] - tri[:, 0]
+    e2 = tri[:, 2] - tri[:, 0]
+    a = np.stack([np.broadcast_to(-d[:, None], (o.shape[0], tri.shape[0], 3)),
+                  np.broadcast_to(e1, (o.shape[0], tri.shape[0], 3)),
+                  np.broadcast_to(e2, (o.shape[0], tri.shape[0], 3))], axis=-1)
+    rhs = o[:, None] - tri[None, :, 0]
+    with np.errstate(all="ignore"):
+        sol = np.linalg.solve(a, rhs[..., None])[..., 0]
+    t, u, v = sol[..., 0], sol[..., 1], sol[..., 2]
+    ok = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0) & np.isfinite(t)
+    return np.where(ok, t, np.inf).min(axis=1)
+
+
+def brute_cylinders(o, d, cyl):
+    """(n,) first hit distance with open tubes (C, 9) (axis, p, cz, r, lo, hi): every root of
+    the circle equation, kept when t > 0 and the point lies inside the cut."""
+    best = np.full(o.shape[0], np.inf)
+    for axis, p, cz, r, lo, hi, *_ in cyl:
+        i, j = (1, 0) if axis == 0 else (0, 1)  # across, along
+        a = d[:, i] ** 2 + d[:, 2] ** 2
+        b = 2 * ((o[:, i] - p) * d[:, i] + (o[:, 2] - cz) * d[:, 2])
+        c = (o[:, i] - p) ** 2 + (o[:, 2] - cz) ** 2 - r * r
+        disc = b * b - 4 * a * c
+        sq = np.sqrt(np.maximum(disc, 0))
+        for t in ((-b - sq) / (2 * a), (-b + sq) / (2 * a)):
+            u = o[:, j] + t * d[:, j]
+            ok = (disc >= 0) & (t > 0) & (u >= lo) & (u <= hi)
+            best = np.where(ok & (t < best), t, best)
+    return best
+
 
 def _nearest(best_t, best_n, t, n, ok):
     take = ok & (t > 0) & (t < best_t)
@@ -100,6 +133,17 @@ def random_rays(rng, n, lo, hi):
     return o, d / np.linalg.norm(d, axis=1)[:, None]
 
 
+def random_cylinders(rng, n):
+    cyl = np.zeros((n, 9))
+    cyl[:, 0] = rng.integers(0, 2, n)
+    cyl[:, 1] = rng.uniform(-1, 1, n)
+    cyl[:, 2] = rng.uniform(-1, 1, n)
+    cyl[:, 3] = rng.uniform(0.05, 0.3, n)
+    cyl[:, 4] = rng.uniform(-1.5, 0, n)
+    cyl[:, 5] = cyl[:, 4] + rng.uniform(0.2, 2, n)
+    return cyl
+
+
 def random_spheres(rng, n):
     sph = np.zeros((n, 9))
     sph[:, 0:3] = rng.uniform(-1, 1, (n, 3))
@@ -126,7 +170,155 @@ def expected_normal(d, outward):
     return s[:, None] * outward
 
 
-# -- analytic primitives against brute force --------------------------------------------------
+# -- meshes -----------------------------------------------------------------------------------
+
+def test_mesh_keeps_vertices_and_faces():
+    m = Mesh([[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]], [[0, 1, 2], [0, 2, 3]])
+    assert m.vertices.shape == (4, 3) and m.faces.dtype == np.int64
+    assert m.triangles().shape == (2, 3, 3) and repr(m) == "Mesh(vertices=4, faces=2)"
+
+
+def test_obj_subset(tmp_path):
+    path = tmp_path / "quad.obj"
+    path.write_text("# a quad and a triangle\no thing\nv 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\n"
+                    "vt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3//1 4\nv 0 0 1\nf -1 1 2\n")
+    m = Mesh.from_obj(path)
+    # the quad is fanned around its first corner; -1 is the last vertex read (index 4)
+    assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3], [4, 0, 1]]
+    np.testing.assert_array_equal(m.vertices[4], [0, 0, 1])
+
+
+@pytest.mark.parametrize("vertices, faces, exc, match", [
+    ([[0, 0, 0], [1, 0, np.nan], [0, 1, 0]], [[0, 1, 2]], ValueError,
+     r"vertices must be finite: 1 of 3 are NaN or inf \(first: vertex 1\)"),
+    ([[0, 0], [1, 0], [0, 1]], [[0, 1, 2]], ValueError, r"vertices must have shape \(V, 3\)"),
+    ([[0, 0, 0], [1, 0, 0], [2, 0, 0]], [[0, 1, 2]], ValueError,
+     r"non-degenerate triangles: 1 of 1 have zero area \(first: face 0 = \[0, 1, 2\]\)"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 1]], ValueError, r"non-degenerate"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 3]], ValueError,
+     r"faces must index vertices 0 \.\. 2: 1 faces do not"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], np.zeros((0, 3), int), ValueError,
+     r"faces must hold at least one triangle"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0.0, 1.0, 2.0]], TypeError,
+     r"faces must be integer vertex indices"),
+    ([[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 1, 2, 0]], ValueError,
+     r"faces must have shape \(F, 3\)"),
+])
+def test_bad_mesh(vertices, faces, exc, match):
+    with pytest.raises(exc, match=match):
+        Mesh(vertices, faces)
+
+
+@pytest.mark.parametrize("text, match", [
+    ("v 0 0 0\nv 1 0 0\n", r"at least one f line"),
+    ("v 0 0\nf 1 1 1\n", r"v line must hold three numbers"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2\n", r"f line must have >= 3 corners"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 0 1 2\n", r"OBJ vertex indices start at 1"),
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf a b c\n", r"f line must hold vertex indices"),
+    ("v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n", r"non-degenerate"),
+])
+def test_bad_obj(tmp_path, text, match):
+    path = tmp_path / "bad.obj"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=match):
+        Mesh.from_obj(path)
+
+
+# -- triangles and cylinders ------------------------------------------------------------------
+
+def test_bvh_triangles_match_brute_force(rng):
+    tri = rng.uniform(-1, 1, (300, 1, 3)) + 0.2 * rng.normal(size=(300, 3, 3))
+    bvh = BVH(np.full(300, TRIANGLE), tri.reshape(300, 9))
+    o, d = random_rays(rng, 3000, -2, 2)
+    t, prim, nrm = bvh.intersect(o, d)
+    ref = brute_triangles(o, d, tri)
+    assert 0.1 < np.isfinite(ref).mean() < 0.9  # a real mix of hits and misses
+    np.testing.assert_array_equal(np.isfinite(t), np.isfinite(ref))
+    hit = np.isfinite(ref)
+    # both solve the same 3x3 system: agreement to ~1e2 eps of the distances (~4)
+    np.testing.assert_allclose(t[hit], ref[hit], rtol=0, atol=1e-12)
+    # the reported triangle contains the hit point and its normal faces the ray
+    e = tri[prim[hit]]
+    n = np.cross(e[:, 1] - e[:, 0], e[:, 2] - e[:, 0])
+    n /= np.linalg.norm(n, axis=1)[:, None]
+    np.testing.assert_allclose(np.abs(np.sum(n * nrm[hit], 1)), 1.0, rtol=0, atol=1e-12)
+    assert np.all(np.sum(nrm[hit] * d[hit], 1) < 0)
+    assert np.all(prim[~hit] == -1)
+
+
+def test_bvh_cylinders_match_brute_force(rng):
+    cyl = random_cylinders(rng, 40)
+    tri = rng.uniform(-1, 1, (50, 1, 3)) + 0.2 * rng.normal(size=(50, 3, 3))
+    pt = np.concatenate([np.full(50, TRIANGLE), np.full(40, CYLINDER)])
+    bvh = BVH(pt, np.concatenate([tri.reshape(50, 9), cyl]))
+    o, d = random_rays(rng, 3000, -2, 2)
+    t, prim, nrm = bvh.intersect(o, d)
+    ref = np.minimum(brute_triangles(o, d, tri), brute_cylinders(o, d, cyl))
+    assert 0.1 < np.isfinite(ref).mean() < 0.95
+    np.testing.assert_array_equal(np.isfinite(t), np.isfinite(ref))
+    hit = np.isfinite(ref)
+    np.testing.assert_allclose(t[hit], ref[hit], rtol=0, atol=1e-11)
+    # a cylinder normal is radial: perpendicular to the axis and of length r from it
+    c = hit & (prim >= 50)
+    assert c.sum() > 100
+    p = o[c] + t[c, None] * d[c]
+    row = cyl[prim[c] - 50]
+    across = np.where(row[:, 0] == 0, p[:, 1], p[:, 0]) - row[:, 1]
+    radial = np.stack([np.where(row[:, 0] == 0, 0, across), np.where(row[:, 0] == 0, across, 0),
+                       p[:, 2] - row[:, 2]], 1)
+    np.testing.assert_allclose(np.linalg.norm(radial, axis=1), row[:, 3], rtol=1e-9)
+    np.testing.assert_allclose(np.abs(np.sum(radial / row[:, 3:4] * nrm[c], 1)), 1.0,
+                               rtol=0, atol=1e-9)
+
+
+def test_bvh_periodic_wrap_matches_explicit_tiles(rng):
+    # a bumpy triangle layer over a 2 x 1.5 period, poking out of the box on every side;
+    # reference: brute force against explicit copies on a 9 x 9 block of periods
+    lx, ly = 2.0, 1.5
+    tri = np.column_stack([rng.uniform(-0.3, lx + 0.3, 60), rng.uniform(-0.3, ly + 0.3, 60),
+                           rng.uniform(-0.2, 0.2, 60)])[:, None] + \
+        0.25 * rng.normal(size=(60, 3, 3))
+    cyl = np.array([[0, 0.4, 0.0, 0.15, 0.0, lx, 0, 0, 0], [1, 1.7, 0.1, 0.1, 0.0, ly, 0, 0, 0]])
+    pt = np.concatenate([np.full(60, TRIANGLE), np.full(2, CYLINDER)])
+    bvh = BVH(pt, np.concatenate([tri.reshape(60, 9), cyl]), period=(lx, ly))
+    o = np.column_stack([rng.uniform(-3, 3, 800), rng.uniform(-3, 3, 800), np.full(800, 0.8)])
+    d = rng.normal(size=(800, 3))
+    d[:, 2] = -np.abs(d[:, 2]) - 0.3
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    st, t, prim, _ = bvh.intersect_periodic(o, d)
+    tiles_t, tiles_c = [], []
+    for kx in range(-4, 5):
+        for ky in range(-4, 5):
+            tiles_t.append(tri + np.array([kx * lx, ky * ly, 0.0]))
+            c = cyl.copy()
+            c[0, 1] += ky * ly
+            c[0, 4:6] += kx * lx
+            c[1, 1] += kx * lx
+            c[1, 4:6] += ky * ly
+            tiles_c.append(c)
+    ref = np.minimum(brute_triangles(o, d, np.concatenate(tiles_t)),
+                     brute_cylinders(o, d, np.concatenate(tiles_c)))
+    # rays that reach the layer well inside the explicit block
+    end = o + np.where(np.isfinite(ref), ref, 0)[:, None] * d
+    inside = np.isfinite(ref) & (np.abs(end[:, 0]) < 7) & (np.abs(end[:, 1]) < 5)
+    assert inside.sum() > 600
+    assert np.all(st[inside] == 0)
+    np.testing.assert_allclose(t[inside], ref[inside], rtol=0, atol=1e-10)
+
+
+def test_bvh_periodic_rays_escape_and_fall_through():
+    # one small triangle per period: upward rays escape, rays missing it are lost
+    tri = np.array([[0.4, 0.4, 0.0, 0.6, 0.4, 0.0, 0.4, 0.6, 0.0]])
+    bvh = BVH([TRIANGLE], tri, period=(1.0, 1.0))
+    o = np.array([[0.45, 0.45, 1.0], [3.45, -6.55, 1.0], [0.1, 0.1, 1.0], [0.45, 0.45, 1.0]])
+    d = np.array([[0, 0, -1.0], [0, 0, -1.0], [0, 0, -1.0], [0, 0, 1.0]])
+    st, t, prim, nrm = bvh.intersect_periodic(o, d)
+    assert st.tolist() == [0, 0, 2, 1] and prim.tolist()[:2] == [0, 0]
+    np.testing.assert_allclose(t[:2], 1.0, rtol=0, atol=1e-15)
+    np.testing.assert_allclose(nrm[:2], [[0, 0, 1], [0, 0, 1]], rtol=0, atol=1e-15)
+
+
+# -- analytic primitives ----------------------------------------------------------------------
 
 def test_spheres_match_brute_force(rng):
     sph = random_spheres(rng, 60)
@@ -343,6 +535,8 @@ def test_stack_depth_is_guaranteed_on_pathological_input():
     assert abs(t[0] - 0.99) < 1e-15 and 0 <= prim[0] < 5000
 
 
+# -- bad input --------------------------------------------------------------------------------
+
 def test_bvh_bad_input():
     with pytest.raises(ValueError, match=r"ptype must be TRIANGLE \(0\), .* got 7 at index 1"):
         BVH([SPHERE, 7], np.ones((2, 9)))
@@ -350,130 +544,6 @@ def test_bvh_bad_input():
         BVH([SPHERE], np.ones((1, 9)), build="x")
 
 
-# -- scenes -----------------------------------------------------------------------------------
-
-def test_scene_spheres_and_tubes_are_packed_and_counted():
-    s = (Scene((2.0, 1.0)).add_plane(0.0).add_sphere([0.5, 0.5, 0.2], 0.2)
-         .add_tube([[0.1, 0.2, 0.0], [1.0, 0.5, 0.0]], [[0.2, 0.2, 0.4], [1.0, 0.5, 0.3]],
-                   [0.01, 0.02], caps=False))
-    assert (s.triangles, s.cylinders, s.spheres, s.tubes) == (2, 0, 1, 2)
-    assert repr(s) == "Scene(period=[2.0, 1.0], triangles=2, cylinders=0, spheres=1, tubes=2)"
-    pt, pd, mats = s._packed()
-    assert pt.tolist() == [TRIANGLE, TRIANGLE, SPHERE, TUBE, TUBE]
-    np.testing.assert_array_equal(pd[2], [0.5, 0.5, 0.2, 0.2, 0, 0, 0, 0, 0])
-    np.testing.assert_array_equal(pd[4], [1.0, 0.5, 0.0, 1.0, 0.5, 0.3, 0.02, 0.0, 0])
-    assert mats.shape == (5, 4)
-
-
-def test_rotated_scene_turns_spheres_and_tubes(rng):
-    # tracing the turned scene with turned rays gives the same distances
-    s = (Scene((2.0, 1.5)).add_plane(0.0)
-         .add_sphere(rng.uniform([0, 0, 0], [2, 1.5, 0.3], (5, 3)), 0.25)
-         .add_tube(rng.uniform([0, 0, 0], [2, 1.5, 0], (6, 3)),
-                   rng.uniform([-0.5, -0.5, 0.3], [2.5, 2, 0.6], (6, 3)), 0.05))
-    r = s.rotated()
-    assert r.period.tolist() == [1.5, 2.0] and (r.spheres, r.tubes) == (5, 6)
-    o = np.column_stack([rng.uniform(0, 2, 800), rng.uniform(0, 1.5, 800), np.full(800, 1.0)])
-    d = rng.normal(size=(800, 3))
-    d[:, 2] = -np.abs(d[:, 2]) - 0.2
-    d /= np.linalg.norm(d, axis=1)[:, None]
-
-    def turn(v, shift):
-        return np.column_stack([shift - v[:, 1], v[:, 0], v[:, 2]])
-
-    st1, t1, p1, n1 = s.bvh.intersect_periodic(o, d)
-    st2, t2, p2, n2 = r.bvh.intersect_periodic(turn(o, 1.5), turn(d, 0.0))
-    assert np.all(st1 == 0) and np.all(st2 == 0)
-    np.testing.assert_array_equal(p1, p2)
-    # a turn of the coordinates (exact up to the subtraction Ly - y): 1e-12 on distances ~2
-    np.testing.assert_allclose(t2, t1, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(n2, turn(n1, 0.0), rtol=0, atol=1e-12)
-    assert np.sum(p1 >= 7) > 50  # the tubes are hit
-
-
-@pytest.mark.parametrize("call, exc, match", [
-    (lambda s: s.add_sphere([0.5, np.nan, 0.0], 0.1), ValueError,
-     r"center must be finite: 1 of 1 points are NaN or inf"),
-    (lambda s: s.add_sphere([0.5, 0.5], 0.1), ValueError,
-     r"center must be a point \(3,\) or points \(n, 3\) with n >= 1, got shape \(2,\)"),
-    (lambda s: s.add_sphere(np.zeros((0, 3)), 0.1), ValueError, r"with n >= 1"),
-    (lambda s: s.add_sphere("here", 0.1), TypeError, r"center must be a point"),
-    (lambda s: s.add_sphere([0, 0, 0], 0.0), ValueError,
-     r"radius must be finite and > 0, got 0.0 \(primitive 0\)"),
-    (lambda s: s.add_sphere([[0, 0, 0], [1, 1, 1]], [0.1, -1.0]), ValueError,
-     r"radius must be finite and > 0, got -1.0 \(primitive 1\)"),
-    (lambda s: s.add_sphere([[0, 0, 0], [1, 1, 1]], [0.1, 0.1, 0.1]), ValueError,
-     r"radius must be a number or 2 numbers \(one per primitive\), got shape \(3,\)"),
-    (lambda s: s.add_sphere([0, 0, 0], np.inf), ValueError, r"radius must be finite"),
-    (lambda s: s.add_tube([0, 0, 0], [0, 0, 0], 0.1), ValueError,
-     r"start and end must be distinct points: 1 of 1 tubes have \(near\) zero length "
-     r"\(first: tube 0"),
-    (lambda s: s.add_tube([0, 0, 0], [0, 0, np.inf], 0.1), ValueError, r"end must be finite"),
-    (lambda s: s.add_tube(np.zeros((2, 3)), np.ones((3, 3)), 0.1), ValueError,
-     r"start and end must hold the same number of points, got 2 and 3"),
-    (lambda s: s.add_tube([0, 0, 0], [0, 0, 1], 0.1, caps="yes"), TypeError,
-     r"caps must be True or False, got 'yes'"),
-    (lambda s: s.add_tube([0, 0, 0], [0, 0, 1], -0.1), ValueError, r"radius must be finite"),
-    (lambda s: s.add_tube([0, 0, 0], [0, 0, 1], 0.1, material="glass"), TypeError,
-     r"material must be a Material"),
-])
-def test_scene_sphere_and_tube_bad_input(call, exc, match):
-    with pytest.raises(exc, match=match):
-        call(Scene(1.0))
-
-
-def test_one_start_many_ends():
-    s = Scene(1.0).add_tube([0.5, 0.5, 0.0], [[0.4, 0.5, 0.3], [0.6, 0.5, 0.3]], 0.01)
-    pd = s._packed()[1]
-    np.testing.assert_array_equal(pd[:, 0:3], [[0.5, 0.5, 0.0]] * 2)
-
-
-# -- energy -----------------------------------------------------------------------------------
-
-def _pile(rng):
-    """Lossless closed scene: mirror spheres and tilted capped tubes (poking out of the
-    period; the tubes' feet sunk into the plane) on a lossless diffuse plane."""
-    s = Scene((1.0, 1.0)).add_plane(0.0, material=Diffuse(1.0))
-    s.add_sphere(np.column_stack([rng.uniform(0, 1, (6, 2)), rng.uniform(0.1, 0.3, 6)]), 0.2)
-    base = np.column_stack([rng.uniform(0, 1, (20, 2)), np.full(20, -0.05)])
-    tilt = rng.uniform(0, np.radians(30), 20)
-    az = rng.uniform(0, 2 * np.pi, 20)
-    top = base + 0.4 * np.column_stack([np.sin(tilt) * np.cos(az), np.sin(tilt) * np.sin(az),
-                                        np.cos(tilt)])
-    return s.add_tube(base, top, 0.03, material=Mirror())
-
-
-@pytest.mark.parametrize("theta", [0.0, 60.0])
-def test_lossless_spheres_and_tubes_keep_every_ray(rng, theta):
-    # every facet reflects all: each ray leaves upwards with weight exactly 1
-    t = np.radians(theta)
-    p = trace(_pile(rng), [np.sin(t), 0.0, np.cos(t)], 20000, seed=2)
-    assert p.lost.sum() == 0.0 and np.all(p.weights == 1.0) and np.all(p.absorbed == 0.0)
-    assert np.all(p.directions[:, 2] > 0) and np.mean(p.bounces >= 2) > 0.2
-
-
-def test_lossless_spheres_and_tubes_matrix_albedo(rng):
-    # albedo 1 and reciprocity: int q(wi, wo) dwo = cos_i. HemiZernike holds the constant
-    # b_0 = 1 / sqrt(2 pi), so M c with c_k = int_H b_k = sqrt(2 pi) delta_k0 must equal
-    # int_H b_j cos exactly (no truncation); M is symmetrised, so half of M[:, 0] comes from
-    # the exit directions. sigma of (M c)_j = sqrt(2 pi) stderr_j0.
-    b = HemiZernike(4)
-    res = simulate(_pile(rng), b, rays=40000, seed=1, chunk=250)  # 20 batches
-    x, wq = np.polynomial.legendre.leggauss(12)
-    z = 0.5 * (x + 1)
-    phi = np.linspace(0, 2 * np.pi, 16, endpoint=False)
-    zz, pp = np.meshgrid(z, phi, indexing="ij")
-    r = np.sqrt(1 - zz * zz)
-    w = np.stack([r * np.cos(pp), r * np.sin(pp), zz], -1).reshape(-1, 3)
-    # exact: the m = 0 functions are polynomials in z of degree <= 4, the others vanish on
-    # the uniform azimuth grid
-    wts = (0.5 * wq[:, None] * np.full(16, 2 * np.pi / 16)).reshape(-1)
-    bw = b.eval(w)
-    c = wts @ bw
-    np.testing.assert_allclose(c, np.sqrt(2 * np.pi) * (np.arange(b.size) == 0), rtol=0,
-                               atol=1e-13)
-    ref = (wts * w[:, 2]) @ bw
-    got = res.matrix.matrix @ c
-    se = res.stderr @ np.abs(c)
-    assert res.energy == {"reflected": 1.0, "absorbed": 0.0, "escaped": 0.0}
-    assert np.all(np.abs(got - ref) < K_SIGMA * se + 1e-12), (got - ref) / se
+def test_bvh_empty_scene_is_refused():
+    with pytest.raises(ValueError, match=r"at least one primitive, got none"):
+        BVH(np.zeros(0, np.int64), np.zeros((0, 9)))
