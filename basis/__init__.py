@@ -1,5 +1,7 @@
-"""The mathematics: spherical harmonics, hemisphere Zernike functions, Helmholtz surface
-scattering modes, quadrature rules, the symmetric coefficient matrix and its evaluation.
+"""The mathematics of scatmodes.
+
+Spherical harmonics, hemisphere Zernike functions, Helmholtz surface scattering modes,
+quadrature rules, the symmetric coefficient matrix and its evaluation.
 
 ``basis`` knows nothing of BRDF models, files or plots; ``project`` and ``compress`` build
 on it, never the other way round.

@@ -1,5 +1,8 @@
-"""What every basis shares: the uniform shape (size, order, degree, azimuthal, eval), the
-azimuthal block layout and the radial factors."""
+"""What every basis shares.
+
+The uniform shape (size, order, degree, azimuthal, eval), the azimuthal block layout and the
+radial factors.
+"""
 
 from __future__ import annotations
 
@@ -73,7 +76,7 @@ class Basis:
         return self._azimuthal.copy()
 
     def index(self, degree: int, azimuthal: int) -> int:
-        """Flat position of the function with this degree and signed azimuthal order."""
+        """Return the flat position of the function with this degree and signed azimuthal order."""
         hit = np.flatnonzero((self._degree == degree) & (self._azimuthal == azimuthal))
         if hit.size == 0:
             raise ValueError(f"{type(self).__name__}({self._order}) has no function with "
@@ -81,7 +84,10 @@ class Basis:
         return int(hit[0])
 
     def truncate(self, order: int) -> Basis:
-        """The same kind of basis at a lower order (its functions are a prefix of this one's)."""
+        """Return the same kind of basis at a lower order.
+
+        Its functions are a prefix of this one's.
+        """
         order = nonneg_int(order, "order", maximum=self._order,
                            why=f" (the order of {self!r})")
         return self._with_order(order)
@@ -90,7 +96,7 @@ class Basis:
         return type(self)(order)
 
     def azimuthal_blocks(self) -> AzimuthalBlocks:
-        """The azimuthal block layout: positions of the cos(m phi) and sin(m phi) functions.
+        """Return the azimuthal block layout: positions of the cos(m phi) and sin(m phi) functions.
 
         Returns
         -------
@@ -117,7 +123,9 @@ class Basis:
         return cached
 
     def radial(self, z: ArrayLike) -> NDArray[np.float64]:
-        """Radial factors P_k(z) of every function, b_k(theta, phi) = P_k(cos theta) A_k(phi).
+        """Evaluate the radial factors P_k(z) of every function.
+
+        Each function factors as b_k(theta, phi) = P_k(cos theta) A_k(phi).
 
         Parameters
         ----------
@@ -187,7 +195,7 @@ class Basis:
         raise NotImplementedError
 
     def moments(self, weight: str = "cos") -> NDArray[np.float64]:
-        """Integrals of each function over the upper hemisphere.
+        """Integrate each function over the upper hemisphere.
 
         Parameters
         ----------
@@ -227,6 +235,6 @@ class Basis:
 
 
 def triangular_offsets(order: int) -> NDArray[np.int64]:
-    """Start of column m in a table holding, for each m = 0..order, the entries l = m..order."""
+    """Return the start of column m in a table of the entries l = m..order for m = 0..order."""
     lengths = order + 1 - np.arange(order + 1)
     return np.concatenate([[0], np.cumsum(lengths)[:-1]]).astype(np.int64)

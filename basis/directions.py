@@ -1,7 +1,8 @@
 """Conversions between direction vectors, spherical angles and Rusinkiewicz coordinates.
 
-Local frame (DESIGN.md): z is the surface normal, x the tangent that azimuth 0 points along.
-Both directions point away from the surface. Angles are in radians.
+Directions are float64 unit vectors of shape (..., 3) in the local frame of the surface: z is
+the surface normal, x the tangent that azimuth 0 points along. Both directions of a pair
+point away from the surface. Angles are in radians.
 """
 
 from __future__ import annotations
@@ -29,7 +30,9 @@ def _angles(*arrays: ArrayLike, names: tuple[str, ...]) -> list[NDArray[np.float
 
 
 def from_angles(theta: ArrayLike, phi: ArrayLike) -> NDArray[np.float64]:
-    """Unit vectors from polar angle ``theta`` (from z) and azimuth ``phi`` (from x), radians.
+    """Return unit vectors from polar angle ``theta`` (from z) and azimuth ``phi`` (from x).
+
+    Both angles are in radians.
 
     Returns
     -------
@@ -46,7 +49,7 @@ def from_angles(theta: ArrayLike, phi: ArrayLike) -> NDArray[np.float64]:
 
 
 def to_angles(dirs: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """(theta, phi) of unit vectors; theta in [0, pi], phi in (-pi, pi].
+    """Return the angles (theta, phi) of unit vectors; theta in [0, pi], phi in (-pi, pi].
 
     theta is computed with arctan2 of (|(x, y)|, z), which stays accurate near the poles.
     """
@@ -55,7 +58,7 @@ def to_angles(dirs: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]
 
 
 def to_rusinkiewicz(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-    """Half/difference angles (theta_h, phi_h, theta_d, phi_d) of direction pairs.
+    """Return the half/difference angles (theta_h, phi_h, theta_d, phi_d) of direction pairs.
 
     h = (wi + wo)/|wi + wo|, d = R_y(-theta_h) R_z(-phi_h) wi (Rusinkiewicz 1998), so that
     ``from_rusinkiewicz`` inverts it. For wi = -wo (no half vector) theta_h is set to 0.
@@ -80,7 +83,7 @@ def to_rusinkiewicz(wi: ArrayLike, wo: ArrayLike) -> tuple[NDArray, NDArray, NDA
 def from_rusinkiewicz(
     theta_h: ArrayLike, phi_h: ArrayLike, theta_d: ArrayLike, phi_d: ArrayLike
 ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Directions (wi, wo) from Rusinkiewicz half/difference angles (radians).
+    """Return the directions (wi, wo) from Rusinkiewicz half/difference angles (radians).
 
     Examples
     --------

@@ -114,7 +114,7 @@ class Evaluator:
         return self.cm.channels
 
     def __call__(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
-        """BRDF values, as :meth:`basis.CoefficientMatrix.eval` (same shapes, same zeros).
+        """Evaluate the BRDF, as :meth:`basis.CoefficientMatrix.eval` (same shapes, same zeros).
 
         Parameters
         ----------
@@ -139,7 +139,7 @@ class Evaluator:
 
     def eval_flat(self, wi: NDArray[np.float64], wo: NDArray[np.float64],
                   out: NDArray[np.float64]) -> None:
-        """No-validation path for hot loops.
+        """Evaluate into ``out`` without validation, for hot loops.
 
         Parameters
         ----------
@@ -174,7 +174,7 @@ class Evaluator:
 
 
 def lift_to(w: NDArray[np.float64], min_cos: float) -> NDArray[np.float64]:
-    """Directions with cos(theta) < ``min_cos`` moved up to that elevation, same azimuth.
+    """Move directions with cos(theta) < ``min_cos`` up to that elevation, keeping the azimuth.
 
     Parameters
     ----------

@@ -1,5 +1,7 @@
-"""The names of the basis kinds, and the one factory that turns a name and an order into a
-basis. Command line, studies and storage all speak this vocabulary (``Basis.kind``)."""
+"""The names of the basis kinds, and the one factory that turns a name and an order into a basis.
+
+Command line, studies and storage all speak this vocabulary (``Basis.kind``).
+"""
 
 from __future__ import annotations
 
@@ -11,14 +13,15 @@ from .zernike import HemiZernike
 __all__ = ["KINDS", "make_basis"]
 
 #: Basis kinds: ``"zernike"`` (:class:`HemiZernike`), ``"harmonics"`` (:class:`HemiHarmonics`,
-#: odd parity: Westin's completion, vanishing on the horizon), ``"harmonics-even"``
-#: (:class:`HemiHarmonics` with ``parity="even"``) and ``"sh"`` (:class:`SphericalHarmonics`,
-#: the whole sphere). ``make_basis(b.kind, b.order) == b`` for every basis ``b``.
+#: odd parity: the odd completion of Westin, Arvo & Torrance 1992, vanishing on the horizon),
+#: ``"harmonics-even"`` (:class:`HemiHarmonics` with ``parity="even"``) and ``"sh"``
+#: (:class:`SphericalHarmonics`, the whole sphere). ``make_basis(b.kind, b.order) == b`` for
+#: every basis ``b``.
 KINDS = ("zernike", "harmonics", "harmonics-even", "sh")
 
 
 def make_basis(kind: str, order: int) -> Basis:
-    """The basis named ``kind`` (one of :data:`KINDS`) at ``order``.
+    """Return the basis named ``kind`` (one of :data:`KINDS`) at ``order``.
 
     Parameters
     ----------

@@ -53,11 +53,12 @@ class HelmholtzModes:
     d omega_i d omega_o, which the tests verify by exact quadrature. The general modes are
     K_a(w_i) K_a(w_o) and (K_a(w_i) K_b(w_o) + K_b(w_i) K_a(w_o)) / sqrt(2).
 
-    Where this disagrees with the seed paper (sec. 3.2-3.3): the paper's S_nm^l omits c, so
-    its modes are orthogonal but have norms 2, sqrt(2), sqrt(2), 1 in the four cases above
-    (``paper_norms`` returns them); its printed S_20^0 = sqrt(3)/pi (cos theta_1 + cos theta_2
-    - 1) has the opposite sign to R_2^0 = 2 rho^2 - 1 = 1 - 2 cos theta (the correct
-    unnormalised mode is sqrt(3)/pi (1 - cos theta_1 - cos theta_2)), and its printed
+    Where this disagrees with Koenderink, van Doorn & Stavridi (1996, sec. 3.2-3.3): the
+    paper's S_nm^l omits c, so its modes are orthogonal but have norms 2, sqrt(2), sqrt(2), 1
+    in the four cases above (``paper_norms`` returns them); its printed
+    S_20^0 = sqrt(3)/pi (cos theta_1 + cos theta_2 - 1) has the opposite sign to
+    R_2^0 = 2 rho^2 - 1 = 1 - 2 cos theta (the correct unnormalised mode is
+    sqrt(3)/pi (1 - cos theta_1 - cos theta_2)), and its printed
     S_22^0 = (3/pi)(1 + cos theta_1)(1 + cos theta_2) is not a mode at all: the correct one is
     (3/pi)(1 - 2 cos theta_1)(1 - 2 cos theta_2). S_00^0 = 1/pi, S_11^1 and S_22^2 as printed
     agree with the unnormalised form. The paper also prints the hemisphere normalisation as
@@ -137,7 +138,7 @@ class HelmholtzModes:
 
     @property
     def paper_norms(self) -> NDArray[np.float64]:
-        """L2 norms of the seed paper's unnormalised S_nm^l (isotropic modes only)."""
+        """L2 norms of the unnormalised S_nm^l of Koenderink et al. 1996 (isotropic modes only)."""
         if not self.isotropic:
             raise ValueError("paper_norms is defined for the isotropic modes only")
         n, m, l = self._indices.T

@@ -78,7 +78,7 @@ def _product_rule(n_theta: int, n_phi: int, lo: float, domain: str) -> Hemispher
 
 
 def hemisphere_rule(n_theta: int, n_phi: int) -> HemisphereRule:
-    """Gauss-Legendre (z in [0, 1]) x uniform azimuth rule on the upper hemisphere.
+    """Build the Gauss-Legendre (z in [0, 1]) x uniform azimuth rule on the upper hemisphere.
 
     Parameters
     ----------
@@ -102,7 +102,7 @@ def hemisphere_rule(n_theta: int, n_phi: int) -> HemisphereRule:
 
 
 def sphere_rule(n_theta: int, n_phi: int) -> HemisphereRule:
-    """Gauss-Legendre (z in [-1, 1]) x uniform azimuth rule on the whole sphere.
+    """Build the Gauss-Legendre (z in [-1, 1]) x uniform azimuth rule on the whole sphere.
 
     Exact for p(z) t(phi), deg p <= 2 n_theta - 1 and deg t <= n_phi - 1 (the Gauss-Legendre
     grid of pyshtools' ``SHExpandGLQ`` is the same construction).

@@ -26,9 +26,11 @@ _PARITY_CODE = {"all": 2, "odd": 1, "even": 0}
 
 
 class _Harmonics(Basis):
-    """Real spherical harmonics of one parity class (all, odd or even l + |m|), degrees
-    0..lmax: the indices, the scaled Legendre recurrence and its kernel, shared by
-    :class:`SphericalHarmonics` and :class:`HemiHarmonics`."""
+    """Real spherical harmonics of one parity class (all, odd or even l + |m|), degrees 0..lmax.
+
+    The indices, the scaled Legendre recurrence and its kernel, shared by
+    :class:`SphericalHarmonics` and :class:`HemiHarmonics`.
+    """
 
     max_order = 2800
     _parity = "all"
@@ -83,12 +85,15 @@ class SphericalHarmonics(_Harmonics):
     kind = "sh"
 
     def exact_rule(self) -> HemisphereRule:
-        """A product rule exact for every product of two functions of this basis over its domain."""
+        """Return a product rule exact for every product of two functions of this basis.
+
+        The rule covers the basis' domain (here the whole sphere).
+        """
         return sphere_rule(self._order + 1, 2 * self._order + 1)
 
     # -- grid transforms (pyshtools, ducc backend) ------------------------------------------
     def grid(self) -> NDArray[np.float64]:
-        """Directions of the Gauss-Legendre grid of pyshtools, shape (lmax+1, 2 lmax+1, 3).
+        """Return the directions of the Gauss-Legendre grid of pyshtools, (lmax+1, 2 lmax+1, 3).
 
         Latitude rows at the zeros of P_{lmax+1}(cos theta) (north to south), longitudes
         2 pi j / (2 lmax + 1). Values sampled there are what :meth:`expand` takes.
@@ -102,7 +107,7 @@ class SphericalHarmonics(_Harmonics):
                                             zero[:, None]), axis=-1)
 
     def expand(self, values: ArrayLike) -> NDArray[np.float64]:
-        """Coefficients (flat order) of a function sampled on :meth:`grid`.
+        """Return the coefficients (flat order) of a function sampled on :meth:`grid`.
 
         Exact for band-limited functions of degree <= lmax (Gauss-Legendre quadrature);
         computed by pyshtools' ``SHExpandGLQ`` (ducc0 backend when installed).
@@ -123,15 +128,17 @@ class SphericalHarmonics(_Harmonics):
         return self.from_cilm(cilm)
 
     def synthesize(self, coeffs: ArrayLike) -> NDArray[np.float64]:
-        """Values on :meth:`grid` of the expansion with these flat coefficients
-        (pyshtools ``MakeGridGLQ``)."""
+        """Evaluate the expansion with these flat coefficients on :meth:`grid`.
+
+        Computed by pyshtools' ``MakeGridGLQ``.
+        """
         import pyshtools
 
         return pyshtools.expand.MakeGridGLQ(self.to_cilm(coeffs), norm=4, csphase=1)
 
     # -- pyshtools interoperability ---------------------------------------------------------
     def to_cilm(self, coeffs: NDArray[np.float64]) -> NDArray[np.float64]:
-        """Coefficients in flat order -> pyshtools array ``cilm[2, lmax+1, lmax+1]``.
+        """Convert coefficients in flat order to the pyshtools array ``cilm[2, lmax+1, lmax+1]``.
 
         Valid for pyshtools with normalization='ortho', csphase=1 (the same functions).
         """
@@ -145,7 +152,10 @@ class SphericalHarmonics(_Harmonics):
         return cilm
 
     def from_cilm(self, cilm: NDArray[np.float64]) -> NDArray[np.float64]:
-        """pyshtools array ``cilm[2, L+1, L+1]`` (ortho, csphase=1) -> flat coefficients."""
+        """Convert a pyshtools array ``cilm[2, L+1, L+1]`` to coefficients in flat order.
+
+        Valid for pyshtools with normalization='ortho', csphase=1 (the same functions).
+        """
         c = np.asarray(cilm, dtype=np.float64)
         if c.ndim != 3 or c.shape[0] != 2 or c.shape[1] != c.shape[2] or c.shape[1] <= self._order:
             raise ValueError(f"cilm must have shape (2, L+1, L+1) with L >= {self._order}, "
@@ -203,6 +213,10 @@ class HemiHarmonics(_Harmonics):
         return self._parity
 
     def exact_rule(self) -> HemisphereRule:
+        """Return a product rule exact for every product of two functions of this basis.
+
+        The rule covers the basis' domain, the upper hemisphere.
+        """
         return hemisphere_rule(self._order + 1, 2 * self._order + 1)
 
     def _key(self) -> tuple:

@@ -104,7 +104,7 @@ def as_directions(
 
 
 def broadcast_batch(wi: NDArray, wo: NDArray) -> tuple[int, ...]:
-    """Broadcast batch shape of two (..., 3) direction arrays, or a clear ValueError."""
+    """Return the broadcast batch shape of two (..., 3) direction arrays, or a clear ValueError."""
     try:
         return tuple(np.broadcast_shapes(wi.shape[:-1], wo.shape[:-1]))
     except ValueError:

@@ -39,7 +39,7 @@ class HemiZernike(Basis):
     for n - |l| even, ordered by n and then by signed l ascending. ``degree`` holds n and
     ``azimuthal`` the signed l.
 
-    Where this disagrees with the seed paper (Koenderink, van Doorn & Stavridi 1996, sec. 2):
+    Where this disagrees with Koenderink, van Doorn & Stavridi (1996, sec. 2):
     the printed normalisation sqrt((2n + 1)/2) is wrong; the disk norm pi/(n+1) and the
     Jacobian d omega = 2 dA give sqrt((n + 1)/(2 pi)) for the complex functions R e^{il phi},
     and the real functions above (checked by exact quadrature in the tests). The explicit
@@ -79,13 +79,16 @@ class HemiZernike(Basis):
         _zernike_kernel(dirs, self._order, self._coef, self._norm, out)
 
     def exact_rule(self) -> HemisphereRule:
-        """Exact for every product K_a K_b: a polynomial of degree <= order in rho^2 = 1 - z
-        when |l_a| = |l_b|, and of azimuthal degree <= 2 order otherwise."""
+        """Return a product rule exact for every product of two functions of this basis.
+
+        Exact for every product K_a K_b: a polynomial of degree <= order in rho^2 = 1 - z
+        when |l_a| = |l_b|, and of azimuthal degree <= 2 order otherwise.
+        """
         return hemisphere_rule(self._order // 2 + 1, 2 * self._order + 1)
 
 
 def zernike_radial(n: int, l: int, rho: ArrayLike) -> NDArray[np.float64]:
-    """Zernike radial polynomial R_n^l(rho) on the unit disk, by the stable recurrence.
+    """Evaluate the Zernike radial polynomial R_n^l(rho) on the unit disk by a stable recurrence.
 
     Parameters
     ----------

@@ -1,6 +1,7 @@
-"""What is done with coefficients: truncation, filtering, low rank, storage precision, order
-selection, error/resolution studies and charts, HDF5 storage, pictures of a BRDF on a lit
-sphere, and the ``scatmodes`` command.
+"""What is done with coefficients.
+
+Truncation, filtering, low rank, storage precision, order selection, error/resolution studies
+and charts, HDF5 storage, pictures of a BRDF on a lit sphere, and the ``scatmodes`` command.
 
 Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 """

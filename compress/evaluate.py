@@ -17,7 +17,7 @@ __all__ = ["FastEvaluator", "evaluate"]
 
 def evaluate(cm: CoefficientMatrix, wi: ArrayLike, wo: ArrayLike, *,
              min_cos: float = 1e-3) -> NDArray[np.float64]:
-    """BRDF values of ``cm``; the same as ``cm.eval(wi, wo, min_cos=min_cos)``.
+    """Evaluate the BRDF of ``cm``; the same as ``cm.eval(wi, wo, min_cos=min_cos)``.
 
     Parameters
     ----------

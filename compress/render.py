@@ -41,7 +41,7 @@ _POLE = 1e-8
 def render_sphere(brdf: object, light: ArrayLike, *, size: int = 256,
                   view: ArrayLike = (0.0, 0.0, 1.0), tangent: ArrayLike = (1.0, 0.0, 0.0),
                   intensity: ArrayLike = 1.0, min_cos: float = 1e-3) -> NDArray[np.float64]:
-    """Radiance image of a unit sphere lit by a directional light, seen orthographically.
+    """Render the radiance image of a unit sphere lit by a directional light, seen orthographically.
 
     Parameters
     ----------
@@ -158,7 +158,7 @@ def render_sphere(brdf: object, light: ArrayLike, *, size: int = 256,
 
 def tonemap(image: ArrayLike, exposure: float = 1.0, *,
             background: float | None = None) -> NDArray[np.float64]:
-    """Display values of a radiance image: exposure, clipping to [0, 1], sRGB encoding.
+    """Map a radiance image to display values: exposure, clipping to [0, 1], sRGB encoding.
 
     Parameters
     ----------
@@ -203,7 +203,7 @@ def tonemap(image: ArrayLike, exposure: float = 1.0, *,
 # -- helpers --------------------------------------------------------------------------------
 
 def _evaluator(brdf: object, min_cos: float):
-    """A function (wi (n, 3), wo (n, 3)) -> (n,) or (n, channels) for ``brdf``."""
+    """Return a function (wi (n, 3), wo (n, 3)) -> (n,) or (n, channels) for ``brdf``."""
     if isinstance(brdf, CoefficientMatrix):
         if not 0.0 < min_cos < 1.0:
             raise ValueError(f"min_cos must lie in (0, 1), got {min_cos!r}")

@@ -11,7 +11,8 @@ tables is computed when the function runs, nothing is assumed:
 2. :func:`hemisphere_conditioning`: condition number of the BRDF least-squares problem in
    full-sphere harmonics against the hemisphere bases, and the resulting fit error.
 3. :func:`sparse_fits`: fit error against samples per unknown and noise for each order (the
-   seed's brick case is 66 measurements for 55 unknowns at order 8), with and without
+   brick case of Koenderink, van Doorn & Stavridi 1996, sec. 6, is 66 measurements for 55
+   unknowns at order 8), with and without
    Tikhonov regularisation, and what the condition number predicts.
 4. :func:`sharp_lobes`: truncation and quadrature error against roughness and order, Gibbs
    ringing with and without each filter, and the grazing amplification of f = q / (cos cos).
@@ -62,8 +63,11 @@ _TINY_REF = 1e-280
 # -- the table ------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Panel:
-    """One chart panel: ``y`` against ``x``, one line per value of ``group`` (a column or a
-    tuple of columns), on the rows of ``table`` matching ``where``."""
+    """One chart panel: ``y`` against ``x``, one line per value of ``group``.
+
+    ``group`` is a column or a tuple of columns; the panel shows the rows of ``table``
+    matching ``where``.
+    """
 
     x: str
     y: str
@@ -109,11 +113,11 @@ class Atlas:
         return self.tables[table]
 
     def select(self, table: str = "main", **where: Any) -> list[dict[str, Any]]:
-        """Rows whose columns equal the given values."""
+        """Return the rows whose columns equal the given values."""
         return [r for r in self._table(table) if all(r.get(k) == v for k, v in where.items())]
 
     def column(self, name: str, table: str = "main", **where: Any) -> NDArray:
-        """One column of the matching rows as an array (float when numeric)."""
+        """Return one column of the matching rows as an array (float when numeric)."""
         vals = [r[name] for r in self.select(table, **where)]
         try:
             return np.array([np.nan if v is None else v for v in vals], dtype=np.float64)
@@ -121,7 +125,7 @@ class Atlas:
             return np.array(vals, dtype=object)
 
     def to_markdown(self) -> str:
-        """The tables as GitHub markdown, the findings first."""
+        """Render the tables as GitHub markdown, the findings first."""
         out = [f"## {self.title}", ""]
         out += [f"- {n}" for n in self.notes]
         out += ["", _markdown(self.rows)]
@@ -201,7 +205,7 @@ def _mpmath():
 
 
 def zernike_factorial(n: int, l: int, rho: float) -> float:
-    """R_n^l(rho) by the textbook factorial sum, in float64 (an unstable baseline).
+    """Evaluate R_n^l(rho) by the textbook factorial sum, in float64 (an unstable baseline).
 
     sum_s (-1)^s (n - s)! / (s! ((n + l)/2 - s)! ((n - l)/2 - s)!) rho^(n - 2 s), every
     factorial a float64 (inf beyond 170!, so the result is NaN from n = 171).
@@ -219,8 +223,11 @@ def zernike_factorial(n: int, l: int, rho: float) -> float:
 
 
 def zernike_power(n: int, l: int, rho: float) -> float:
-    """R_n^l(rho) as rho^l times a polynomial in rho^2 with exact integer coefficients rounded
-    once to float64, evaluated by Horner's rule (the naive power series; unstable baseline)."""
+    """Evaluate R_n^l(rho) by the naive power series (an unstable baseline).
+
+    R_n^l(rho) is rho^l times a polynomial in rho^2 with exact integer coefficients rounded
+    once to float64, evaluated by Horner's rule.
+    """
     k = (n - l) // 2
     acc = 0.0
     r2 = rho * rho
@@ -240,10 +247,12 @@ def _to_float(c: int) -> float:
 
 
 def sh_factorial(l: int, m: int, z: float, s: float) -> float:
-    """Real orthonormal Y_lm at phi = 0 by the textbook formulas, in float64 (unstable
-    baseline): N_lm = sqrt((2l+1)/(4 pi) (l-m)!/(l+m)!) and the explicit Legendre sum
+    """Evaluate the real orthonormal Y_lm at phi = 0 by the textbook formulas (unstable baseline).
+
+    In float64: N_lm = sqrt((2l+1)/(4 pi) (l-m)!/(l+m)!) and the explicit Legendre sum
     P_l^m = s^m 2^-l sum_k (-1)^k (2l-2k)! / (k! (l-k)! (l-2k-m)!) z^(l-2k-m), every factorial a
-    float64 (so NaN once 2l > 170)."""
+    float64 (so NaN once 2l > 170).
+    """
     from scipy.special import factorial
 
     with np.errstate(all="ignore"):
@@ -258,10 +267,12 @@ def sh_factorial(l: int, m: int, z: float, s: float) -> float:
 
 
 def sh_power(l: int, m: int, z: float, s: float) -> float:
-    """Real orthonormal Y_lm at phi = 0 as s^m times a polynomial in z whose coefficients
-    (normalisation included) are computed exactly and rounded once to float64, summed by
-    Horner's rule (the naive power series; unstable baseline; coefficients above 1.8e308
-    overflow to inf)."""
+    """Evaluate the real orthonormal Y_lm at phi = 0 by the naive power series (unstable baseline).
+
+    Y_lm is s^m times a polynomial in z whose coefficients (normalisation included) are
+    computed exactly and rounded once to float64, summed by Horner's rule; coefficients above
+    1.8e308 overflow to inf.
+    """
     mp = _mpmath()
     with mp.workdps(40):
         norm = mp.sqrt((2 * l + 1) / (4 * mp.pi) * mp.factorial(l - m) / mp.factorial(l + m))
@@ -304,7 +315,7 @@ def radial_accuracy(*, zernike_orders: Sequence[int] = (10, 20, 40, 60, 80, 100,
                     sh_degrees: Sequence[int] = (10, 20, 40, 60, 85, 100, 200, 500, 1000, 2000),
                     regions: dict[str, Sequence[float]] | None = None,
                     dps: int = 60) -> Atlas:
-    """Digits kept by three ways of evaluating the radial functions, against mpmath.
+    """Measure the digits kept by three ways of evaluating the radial functions, against mpmath.
 
     Parameters
     ----------
@@ -445,8 +456,10 @@ def _uniform_pairs(rng: np.random.Generator, n: int) -> tuple[NDArray, NDArray]:
 
 
 def _iso_design(b: basis.Basis, wi: NDArray, wo: NDArray) -> NDArray[np.float64]:
-    """The isotropic design matrix of :func:`project.lstsq.design_matrix` for any basis,
-    full-sphere harmonics included (which ``project.fit`` refuses on purpose)."""
+    """Build the isotropic design matrix of :func:`project.lstsq.design_matrix` for any basis.
+
+    Full-sphere harmonics are included (``project.fit`` refuses them on purpose).
+    """
     from project.lstsq import design_matrix
 
     return design_matrix(wi, wo, b, isotropic=True)
@@ -459,9 +472,11 @@ def _cond(a: NDArray) -> float:
 
 def _tikhonov(a: NDArray, y: NDArray, rel_lambdas: Sequence[float], *,
               with_cond: bool = False) -> Any:
-    """Solutions of min ||a z - y||^2 + lambda ||z||^2 for lambda = t * s_max^2 (t = 0: the
-    pseudoinverse with numpy's rank tolerance, as project.fit); with ``with_cond`` also the
-    condition number of ``a`` (one SVD for both)."""
+    """Solve min ||a z - y||^2 + lambda ||z||^2 for lambda = t * s_max^2 for each t.
+
+    t = 0 gives the pseudoinverse with numpy's rank tolerance, as project.fit; with
+    ``with_cond`` the condition number of ``a`` is returned too (one SVD for both).
+    """
     u, s, vt = np.linalg.svd(a, full_matrices=False)
     uty = u.T @ y
     tol = s[0] * max(a.shape) * EPS
@@ -492,7 +507,7 @@ def hemisphere_conditioning(orders: Sequence[int] = tuple(range(1, 9)), *,
                                                     "zernike"),
                             oversample: float = 4.0, noise: float = 0.01, brdf: Any = None,
                             seed: int = 0) -> Atlas:
-    """Condition numbers of the hemisphere least-squares problem, and the fit error they give.
+    """Measure the condition numbers of the hemisphere least-squares problem and the fit error.
 
     Parameters
     ----------
@@ -583,14 +598,14 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
                 noise: Sequence[float] = (0.0, 0.01, 0.05),
                 rel_lambdas: Sequence[float] = tuple(10.0 ** np.arange(-8.0, 0.5, 1.0)),
                 trials: int = 4, brdf: Any = None, seed: int = 0) -> Atlas:
-    """HemiZernike fits of scattered samples: error against samples, noise and regularisation.
+    """Fit HemiZernike to scattered samples: error against samples, noise and regularisation.
 
     Parameters
     ----------
     orders : sequence of int
     ratios : sequence of float
         Samples per unknown (isotropic unknowns of ``HemiZernike(order)``); 66 / 55 is the
-        seed's brick case at order 8.
+        brick case of Koenderink et al. (1996, sec. 6) at order 8.
     noise : sequence of float
         Gaussian noise relative to the RMS of the samples.
     rel_lambdas : sequence of float
@@ -691,8 +706,10 @@ def sharp_lobes(roughness: Sequence[float] = (0.5, 0.25, 0.12), orders: Sequence
                 *, quantities: Sequence[str] = ("f_cos", "f"), kind: str = "zernike",
                 filters: Sequence[str] = SMOOTHING, kd: float = 0.0, grazing_order: int = 8,
                 grazing_roughness: float = 0.3, pairs: int = 20000, seed: int = 0) -> Atlas:
-    """Projection of ever sharper Cook-Torrance (Beckmann) lobes: truncation, quadrature,
-    Gibbs ringing with and without filters, and grazing amplification.
+    """Project ever sharper Cook-Torrance (Beckmann) lobes and measure what breaks.
+
+    Measured: truncation, quadrature, Gibbs ringing with and without filters, and grazing
+    amplification.
 
     Parameters
     ----------
@@ -824,8 +841,10 @@ def monte_carlo(rays: Sequence[int] = (2000, 8000, 32000), *, order: int = 6, se
                 sigma: float = 1.0, tau: float = 4.0, resolution: int = 64,
                 coarsen: Sequence[int] = (1, 2, 4), resolution_rays: int = 64000,
                 surface_seed: int = 1) -> Atlas:
-    """Microgeometry simulation: error and Q against rays, noise per degree, and the bias of a
-    coarse height field.
+    """Measure the error of the microgeometry simulation.
+
+    Measured: error and Q against rays, noise per degree, and the bias of a coarse height
+    field.
 
     Parameters
     ----------

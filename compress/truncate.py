@@ -5,7 +5,7 @@ still exactly reciprocal) and records what it did, and what it cost, in ``info``
 
 - :func:`truncate`: keep the basis functions of degree <= order (a prefix of every basis).
 - :func:`smooth`: multiply entry (j, k) by w(d_j) w(d_k), d the degree, with w a
-  half-Gaussian (Westin, Arvo & Torrance 1992, sec. 2.5, after Cabral et al.), the Lanczos
+  half-Gaussian (Westin, Arvo & Torrance 1992, sec. 2.5, after Cabral et al. 1987), the Lanczos
   sigma factors or a Hann window. The separable product keeps M symmetric. Reports the
   fraction of negative BRDF values and the Gibbs overshoot before and after.
 - :func:`lowrank`: the symmetric eigen-decomposition of each block (isotropic) or of the
@@ -48,7 +48,7 @@ def _check_cm(cm: object) -> CoefficientMatrix:
 
 
 def _with(cm: CoefficientMatrix, stored: list[NDArray] | NDArray, info: dict) -> CoefficientMatrix:
-    """A matrix like ``cm`` with new (channels-first) blocks or dense matrix and info."""
+    """Return a matrix like ``cm`` with new (channels-first) blocks or dense matrix and info."""
     scalar = cm.is_scalar
     if cm.is_isotropic:
         return CoefficientMatrix.from_blocks(cm.basis, [b[0] if scalar else b for b in stored],
@@ -71,7 +71,7 @@ def _frobenius2(cm_stored: list[NDArray] | NDArray) -> NDArray[np.float64]:
 
 
 def _rel_change(a: list[NDArray] | NDArray, b: list[NDArray] | NDArray) -> float:
-    """max over channels of ||A - B||_F / ||A||_F (the relative L2 change of q)."""
+    """Return the max over channels of ||A - B||_F / ||A||_F (the relative L2 change of q)."""
     if isinstance(a, list):
         diff = [x - y for x, y in zip(a, b, strict=True)]
     else:
@@ -84,7 +84,7 @@ def _rel_change(a: list[NDArray] | NDArray, b: list[NDArray] | NDArray) -> float
 
 # -- truncation ---------------------------------------------------------------------------------
 def truncate(cm: CoefficientMatrix, order: int) -> CoefficientMatrix:
-    """The matrix restricted to basis functions of degree <= ``order``.
+    """Restrict the matrix to the basis functions of degree <= ``order``.
 
     Parameters
     ----------
@@ -137,7 +137,7 @@ def truncate(cm: CoefficientMatrix, order: int) -> CoefficientMatrix:
 # -- smoothing ----------------------------------------------------------------------------------
 def smoothing_factors(kind: str, order: int, *, start: int | None = None,
                       width: float | None = None) -> NDArray[np.float64]:
-    """Attenuation w(d) for degrees d = 0..order.
+    """Return the attenuation w(d) for degrees d = 0..order.
 
     Parameters
     ----------
@@ -204,8 +204,9 @@ def smooth(cm: CoefficientMatrix, kind: str = "half-gaussian", *, start: int | N
 
     Notes
     -----
-    Smoothing changes the directional albedo slightly (Westin et al.; seed-002 digest,
-    sec. 2.5) and does not guarantee non-negativity: check ``after``.
+    Smoothing (the half-Gaussian is that of Westin, Arvo & Torrance 1992, sec. 2.5) changes
+    the directional albedo slightly, since it also attenuates zonal coefficients that
+    contribute to it, and does not guarantee non-negativity: check ``after``.
     """
     cm = _check_cm(cm)
     w = smoothing_factors(kind, cm.order, start=start, width=width)
@@ -258,7 +259,7 @@ class Ringing:
 
 def ringing(cm: CoefficientMatrix, brdf: Any = None, *, pairs: int = RINGING_PAIRS,
             seed: int = 0) -> Ringing:
-    """Negative values and Gibbs overshoot of ``cm`` on seeded random pairs.
+    """Measure the negative values and Gibbs overshoot of ``cm`` on seeded random pairs.
 
     Parameters
     ----------
@@ -293,7 +294,7 @@ def ringing(cm: CoefficientMatrix, brdf: Any = None, *, pairs: int = RINGING_PAI
 
 def _random_pairs(n: int, seed: int, *, max_theta: float = np.pi / 2
                   ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """n pairs uniform in solid angle on the cap theta <= max_theta (each direction)."""
+    """Draw n pairs uniform in solid angle on the cap theta <= max_theta (each direction)."""
     rng = np.random.default_rng(seed)
     zmin = np.cos(max_theta)
     out = []
@@ -307,7 +308,7 @@ def _random_pairs(n: int, seed: int, *, max_theta: float = np.pi / 2
 
 # -- low rank -----------------------------------------------------------------------------------
 def lowrank(cm: CoefficientMatrix, rank: int) -> CoefficientMatrix:
-    """The best symmetric approximation with ``rank`` separable terms per channel.
+    """Return the best symmetric approximation with ``rank`` separable terms per channel.
 
     Parameters
     ----------
@@ -383,7 +384,7 @@ def lowrank(cm: CoefficientMatrix, rank: int) -> CoefficientMatrix:
 
 # -- storage precision --------------------------------------------------------------------------
 def precision(cm: CoefficientMatrix, dtype: str) -> CoefficientMatrix:
-    """The matrix with its coefficients rounded to a storage precision (held as float64).
+    """Round the coefficients of the matrix to a storage precision (held as float64).
 
     Parameters
     ----------
@@ -434,7 +435,10 @@ def precision(cm: CoefficientMatrix, dtype: str) -> CoefficientMatrix:
 
 
 def unique_coefficients(cm: CoefficientMatrix) -> int:
-    """Real numbers stored with symmetric (and, if isotropic, block) storage, all channels."""
+    """Count the real numbers stored with symmetric (and, if isotropic, block) storage.
+
+    All channels are counted.
+    """
     cm = _check_cm(cm)
     full = _stored(cm)
     blocks = full if isinstance(full, list) else [full]

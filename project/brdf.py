@@ -1,6 +1,8 @@
 """What every BRDF in the library shares: the evaluation contract and ideal mirror terms.
 
-A BRDF (DESIGN.md) is any object with ``eval(wi, wo)``, ``channels`` and ``isotropic``.
+A BRDF is any object with ``eval(wi, wo)``, ``channels`` and ``isotropic``; ``wi`` and ``wo``
+are float64 unit vectors of shape (..., 3) in the local frame (z the surface normal), both
+pointing away from the surface.
 :class:`BRDF` implements that contract once (validation, broadcasting, the horizon, channel
 shapes), so analytic models and measured data only write ``_eval`` on clean flat arrays.
 
@@ -21,7 +23,7 @@ __all__ = ["BRDF", "MirrorDelta", "as_color", "broadcast_channels"]
 
 def as_color(value: ArrayLike, name: str, *, low: float | None = 0.0,
              high: float | None = None, open_low: bool = False) -> NDArray[np.float64]:
-    """A scalar or per-channel parameter as a 1-D float64 array (length 1 or channels).
+    """Return a scalar or per-channel parameter as a 1-D float64 array (length 1 or channels).
 
     Parameters
     ----------
@@ -49,7 +51,7 @@ def as_color(value: ArrayLike, name: str, *, low: float | None = 0.0,
 
 
 def broadcast_channels(**params: NDArray[np.float64]) -> int:
-    """Common channel count of per-channel parameters (each of length 1 or C)."""
+    """Return the common channel count of per-channel parameters (each of length 1 or C)."""
     sizes = {k: v.size for k, v in params.items()}
     many = {s for s in sizes.values() if s > 1}
     if len(many) > 1:
@@ -99,7 +101,7 @@ class MirrorDelta:
         return None if self._const is None else self._const.copy()
 
     def reflectance(self, cos_theta: ArrayLike) -> NDArray[np.float64]:
-        """R at the given cosines: (n,) in, (n, channels) out."""
+        """Evaluate R at the given cosines: (n,) in, (n, channels) out."""
         c = np.asarray(cos_theta, dtype=np.float64).reshape(-1)
         if self._const is not None:
             return np.broadcast_to(self._const, (c.size, self.channels)).copy()
@@ -130,7 +132,7 @@ class BRDF:
     _scalar: bool = True
 
     def eval(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
-        """BRDF values f(w_i, w_o) in 1/sr, without the delta terms.
+        """Evaluate the BRDF f(w_i, w_o) in 1/sr, without the delta terms.
 
         Parameters
         ----------
@@ -163,7 +165,9 @@ class BRDF:
         raise NotImplementedError
 
     def albedo(self, wi: ArrayLike, *, n_theta: int = 256, n_phi: int = 512) -> NDArray:
-        """Directional albedo int_H f(w_i, w_o) cos(theta_o) dw_o + the delta reflectances.
+        """Compute the directional albedo, the reflectances of the delta terms included.
+
+        albedo(w_i) = int_H f(w_i, w_o) cos(theta_o) dw_o + the delta reflectances.
 
         A numerical reference by a Gauss-Legendre x uniform product rule over w_o; sharp
         lobes need more nodes (check by doubling ``n_theta`` and ``n_phi``).

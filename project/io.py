@@ -1,7 +1,9 @@
-"""Atomic file output shared by every writer of the library (MERL files, checkpoints, HDF5
-coefficient files, charts): write to a temporary file beside the target, flush it to disk,
-then rename it over the target, so a crash never leaves a half-written file under the real
-name."""
+"""Atomic file output shared by every writer of the library.
+
+The writers are those of MERL files, checkpoints, HDF5 coefficient files and charts: write to
+a temporary file beside the target, flush it to disk, then rename it over the target, so a
+crash never leaves a half-written file under the real name.
+"""
 
 from __future__ import annotations
 

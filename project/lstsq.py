@@ -1,11 +1,11 @@
-"""Least-squares fits of scattered BRDF measurements, and the seed's hemisphere tessellation.
+"""Least-squares fits of scattered BRDF measurements, and a tessellation of the hemisphere.
 
 A measurement is a triple (w_i, w_o, f). The fit finds the symmetric coefficient matrix M of
 q(w_i, w_o) = b(w_i)^T M b(w_o) (q = f, or q = f cos(theta_i) cos(theta_o)) that best matches
 the measurements in the least-squares sense. Reciprocity (M = M^T) and, optionally,
 isotropy are built into the unknowns, so every fit is reciprocal whatever the noise.
 
-Koenderink, van Doorn & Stavridi (ECCV 1996, sec. 4) fit measured brick on a tessellation of
+Koenderink, van Doorn & Stavridi (ECCV 1996, sec. 6) fit measured brick on a tessellation of
 the hemisphere into 40 triangles (a once-subdivided icosahedron) with a pseudoinverse;
 :func:`tessellate_hemisphere` and :func:`bin_samples` give that face-by-face data matrix and
 :func:`fit` the pseudoinverse (an SVD, with the condition number it reveals).
@@ -91,7 +91,7 @@ class Unknowns:
 
 
 def unknowns(basis: Basis, isotropic: bool = True) -> Unknowns:
-    """The unknowns of a fit in ``basis``: the free entries of an (isotropic) symmetric M.
+    """Return the unknowns of a fit in ``basis``: the free entries of an (isotropic) symmetric M.
 
     Parameters
     ----------
@@ -139,7 +139,7 @@ def _layout(basis: Basis, isotropic: bool) -> Unknowns:
 
 def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
                   isotropic: bool = True) -> NDArray[np.float64]:
-    """The linear map from the fit's unknowns to q at each measured pair of directions.
+    """Build the linear map from the fit's unknowns to q at each measured pair of directions.
 
     Parameters
     ----------
@@ -211,8 +211,9 @@ def _design(bi: NDArray, bo: NDArray, lay: Unknowns) -> NDArray[np.float64]:
 
 
 def to_unknowns(cm: CoefficientMatrix, *, isotropic: bool = True) -> NDArray[np.float64]:
-    """The fit's unknowns for a coefficient matrix: ``design_matrix(...) @ to_unknowns(cm)``
-    is q at the sampled pairs.
+    """Return the fit's unknowns for a coefficient matrix.
+
+    ``design_matrix(...) @ to_unknowns(cm)`` is q at the sampled pairs.
 
     Parameters
     ----------
@@ -328,18 +329,18 @@ def fit(
 
     Notes
     -----
-    Minimises ||W^(1/2) (A z - y)||^2 + lambda ||z||^2 with A = :func:`design_matrix` and y
-    the target, by an SVD of W^(1/2) A = U S V^T: z = V diag(s / (s^2 + lambda)) U^T W^(1/2) y;
-    for lambda = 0 singular values below s_max * max(samples, unknowns) * eps are treated as
-    zero (the pseudoinverse, as in the seed; numpy's ``matrix_rank`` tolerance). The unknowns
-    z are the matrix entries scaled by the square root of the number of entries of M that
-    share them, so ||z|| is the Frobenius norm of the whole (dense) M, that is the L2 norm of
-    q over H x H, independent of the storage: the penalty does not favour the off-diagonal
-    or the m > 0 entries, which the raw entry vector would count once though they appear two
-    or four times in M. The same scaling makes the condition number 1 for data on an exact
+    Minimises ||W^(1/2) (A z - y)||^2 + lambda ||z||^2 with A = :func:`design_matrix` and y the
+    target, by an SVD of W^(1/2) A = U S V^T: z = V diag(s / (s^2 + lambda)) U^T W^(1/2) y; for
+    lambda = 0 singular values below s_max * max(samples, unknowns) * eps are treated as zero
+    (the pseudoinverse, as in Koenderink et al. 1996; numpy's ``matrix_rank`` tolerance). The
+    unknowns z are the matrix entries scaled by the square root of the number of entries of M
+    that share them, so ||z|| is the Frobenius norm of the whole (dense) M, that is the L2 norm
+    of q over H x H, independent of the storage: the penalty does not favour the off-diagonal or
+    the m > 0 entries, which the raw entry vector would count once though they appear two or
+    four times in M. The same scaling makes the condition number 1 for data on an exact
     quadrature rule (orthonormal columns).
 
-    Koenderink et al. (1996, sec. 4) fit 40 x 40 face-centre data of brick at order 8
+    Koenderink et al. (1996, sec. 6) fit 40 x 40 face-centre data of brick at order 8
     isotropic (55 unknowns, the ``HelmholtzModes(8)`` count) with a pseudoinverse; see
     :func:`tessellate_hemisphere` and :func:`bin_samples`.
 
@@ -508,7 +509,7 @@ def _check_regularization(value: object) -> float:
     return lam
 
 
-# -- the seed's tessellation -------------------------------------------------------------------
+# -- the tessellation of Koenderink et al. 1996 ------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class Tessellation:
     """Spherical triangles covering the upper hemisphere.
@@ -536,7 +537,7 @@ class Tessellation:
         return int(self.faces.shape[0])
 
     def locate(self, dirs: ArrayLike) -> NDArray[np.int64]:
-        """Index of the face containing each direction.
+        """Return the index of the face containing each direction.
 
         Parameters
         ----------
@@ -562,13 +563,14 @@ class Tessellation:
 
 
 def tessellate_hemisphere(subdivisions: int = 1) -> Tessellation:
-    """The seed's near-equal-area triangulation of the upper hemisphere (40 faces).
+    """Triangulate the upper hemisphere into 40 near-equal-area faces (Koenderink et al. 1996).
 
     Parameters
     ----------
     subdivisions : int
         Times each icosahedron face is split into four (edge midpoints pushed onto the
-        sphere), >= 1: 40 * 4^(subdivisions - 1) faces. 1 is the seed's tessellation.
+        sphere), >= 1: 40 * 4^(subdivisions - 1) faces. 1 is the tessellation of Koenderink,
+        van Doorn & Stavridi (1996, sec. 6).
 
     Returns
     -------
@@ -587,13 +589,13 @@ def tessellate_hemisphere(subdivisions: int = 1) -> Tessellation:
     (checked: with a face centred at the pole 34 faces lie above, 34 below and 12 straddle;
     with an edge centred there, 36, 36 and 8).
 
-    The faces are not of identical area, as the seed says: the 30 corner faces subtend
-    0.14949 sr and the 10 central faces 0.17985 sr (spread max/min = 1.2031), against
-    2 pi / 40 = 0.15708 sr. Areas are exact (Van Oosterom & Strackee 1983:
+    The faces are not of identical area, although Koenderink et al. (1996, sec. 6) say they are:
+    the 30 corner faces subtend 0.14949 sr and the 10 central faces 0.17985 sr (spread max/min =
+    1.2031), against 2 pi / 40 = 0.15708 sr. Areas are exact (Van Oosterom & Strackee 1983:
     tan(Omega/2) = |a.(b x c)| / (1 + a.b + b.c + c.a)); their sum is 2 pi to rounding.
 
-    The seed counts 820 reciprocal data values (40 * 41 / 2) and 66 with isotropy. For this
-    orientation the face-pair classes under isotropy (equal theta_i, theta_o and
+    Koenderink et al. count 820 reciprocal data values (40 * 41 / 2) and 66 with isotropy.
+    For this orientation the face-pair classes under isotropy (equal theta_i, theta_o and
     |phi_i - phi_o| up to exchange, i.e. the orbits of the tessellation's own symmetry group
     C5v) number 96; we could not reproduce 66. Both exceed the 55 unknowns of an isotropic
     order 8 fit (``HelmholtzModes(8).size``), so that fit is overdetermined either way.
@@ -659,7 +661,7 @@ def _subdivide(verts: NDArray, faces: NDArray) -> tuple[NDArray, NDArray]:
 # -- binning -----------------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class BinnedSamples:
-    """Measurements binned face by face: the seed's data matrix.
+    """Measurements binned face by face: the data matrix of Koenderink et al. (1996, sec. 6).
 
     Attributes
     ----------
@@ -675,7 +677,7 @@ class BinnedSamples:
     tessellation: Tessellation
 
     def samples(self) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-        """(wi, wo, values, weights) of the occupied cells at the face centroids.
+        """Return (wi, wo, values, weights) of the occupied cells at the face centroids.
 
         Pass them to :func:`fit` (``fit(wi, wo, values, basis, weights=weights)``): the
         weights are the counts, so the fit treats every original sample as if it had been
@@ -688,7 +690,9 @@ class BinnedSamples:
 
 def bin_samples(wi: ArrayLike, wo: ArrayLike, values: ArrayLike,
                 tessellation: Tessellation | None = None) -> BinnedSamples:
-    """Average measurements over the faces of a tessellation (the seed's 40 x 40 matrix).
+    """Average measurements over the faces of a tessellation (a 40 x 40 matrix by default).
+
+    This is the 40 x 40 data matrix of Koenderink, van Doorn & Stavridi (1996, sec. 6).
 
     Parameters
     ----------

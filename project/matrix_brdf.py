@@ -285,7 +285,7 @@ class MatrixBRDF(BRDF):
         return rows, wts, phi
 
     def sample(self, wi: ArrayLike, u: ArrayLike) -> NDArray[np.float64]:
-        """Exit directions drawn from the tabulated density of f cos(theta_o).
+        """Draw exit directions from the tabulated density of f cos(theta_o).
 
         Parameters
         ----------
@@ -326,7 +326,7 @@ class MatrixBRDF(BRDF):
         return np.stack([s * np.cos(ph), s * np.sin(ph), z], axis=-1)
 
     def pdf(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
-        """Density per solid angle of :meth:`sample` at ``wo`` (0 below the horizon).
+        """Return the density per solid angle of :meth:`sample` at ``wo`` (0 below the horizon).
 
         Parameters
         ----------

@@ -8,10 +8,12 @@ the same format.
 
 Notes
 -----
-**File layout.** Checked against the writer in ``shared/tools/merl_surrogate.py`` (which
-states that it follows the MERL reference reader), ``shared/reference/landscape.md`` (C1) and
-``shared/reference/seeds-000-001-004-digest.md`` (section 5); the three agree on every point
-below (the surrogate files themselves are checked in ``tests/project/test_measured.py``):
+**File layout.** Checked against the MERL reference reader ``BRDFRead.cpp`` as copied in
+public code (e.g. ``BRDFMeasuredMERL.cpp`` of Disney's BRDF Explorer, wdas/brdf) and against
+surrogate MERL files, written in the reference reader's layout from the neural fits of the
+100 MERL materials by Sztrajman et al. ("Neural BRDF representation and importance
+sampling", Computer Graphics Forum 2021); they agree on every point below (the surrogate
+files themselves are checked in ``tests/project/test_measured.py``):
 
 - header: three little-endian int32, the dimensions (n_theta_h, n_theta_d, n_phi_d) =
   (90, 90, 180); the reference reader only checks their product (1,458,000), this reader
@@ -20,8 +22,8 @@ below (the surrogate files themselves are checked in ``tests/project/test_measur
   file size 12 + 8 * 4,374,000 = 34,992,012 bytes;
 - flat index within a channel block: ``phi_d_i + 180 * (theta_d_i + 90 * theta_h_i)``, i.e.
   ``raw.reshape(3, 90, 90, 180)`` is indexed ``[channel, theta_h, theta_d, phi_d]``;
-- theta_h is non-linear: continuous index u = 90 sqrt(theta_h / (pi/2)) (the digest writes
-  ``sqrt(theta_h / (pi/2) * 90 * 90)``, the same number); node i sits at
+- theta_h is non-linear: continuous index u = 90 sqrt(theta_h / (pi/2)) (the reference reader
+  writes ``sqrt(theta_h / (pi/2) * 90 * 90)``, the same number); node i sits at
   theta_h = (i/90)^2 pi/2, so the grid is dense near the specular direction;
 - theta_d is linear, node j at j * (pi/2)/90 (1 degree steps over [0, pi/2));
 - phi_d is linear, node k at k * pi/180 over [0, pi): reciprocity (swapping w_i and w_o maps
@@ -29,10 +31,10 @@ below (the surrogate files themselves are checked in ``tests/project/test_measur
 - stored value = BRDF / scale with scale = (1/1500, 1.15/1500, 1.66/1500) for (R, G, B), so
   BRDF (1/sr) = stored * scale;
 - negative stored values mark invalid cells: the real files use -1 in all three channels
-  (landscape.md, citing ryushinn/meta-sampling#1); the surrogate writes -1 exactly where the
-  incident or outgoing direction of the node lies at or below the horizon (z <= 0), 23.8 % of
-  the cells, in all channels, and clamps its other values to >= 0. This reader treats any
-  negative value as invalid, per channel.
+  (reported in the GitHub issue ryushinn/meta-sampling#1); the surrogate writes -1 exactly
+  where the incident or outgoing direction of the node lies at or below the horizon (z <= 0),
+  23.8 % of the cells, in all channels, and clamps its other values to >= 0. This reader
+  treats any negative value as invalid, per channel.
 - node directions: w_i is d rotated by theta_h about y (phi_h = 0) and w_o its mirror about
   h, which is :func:`basis.from_rusinkiewicz` (checked in ``tests/basis``).
 
@@ -130,7 +132,7 @@ HORIZON_ATOL = 1e-12
 
 
 def merl_grid() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """Angles of the MERL nodes: (theta_h (90,), theta_d (90,), phi_d (180,)), radians.
+    """Return the angles of the MERL nodes: (theta_h (90,), theta_d (90,), phi_d (180,)), radians.
 
     theta_h_i = (i/90)^2 pi/2, theta_d_j = j pi/180, phi_d_k = k pi/180: the lower edge of
     each cell, where the stored values belong (see the module notes).
@@ -164,7 +166,7 @@ def _first_index(mask: NDArray[np.bool_]) -> str:
 
 
 def _check_table(table: ArrayLike, name: str) -> NDArray[np.float64]:
-    """A (3, 90, 90, 180) float64 copy of BRDF values; NaN marks missing cells."""
+    """Return a (3, 90, 90, 180) float64 copy of BRDF values; NaN marks missing cells."""
     try:
         t = np.array(table, dtype=np.float64)
     except (TypeError, ValueError):
@@ -269,7 +271,7 @@ class MERLBRDF(BRDF):
         return self._interpolation
 
     def with_interpolation(self, interpolation: str) -> MERLBRDF:
-        """The same table (shared, not copied) evaluated with another interpolation."""
+        """Return the same table (shared, not copied) evaluated with another interpolation."""
         choice(interpolation, "interpolation", INTERPOLATIONS)
         other = object.__new__(MERLBRDF)
         other.__dict__.update(self.__dict__)

@@ -120,7 +120,7 @@ def _kinds(text: str) -> tuple[str, ...]:
 
 # -- models and files ------------------------------------------------------------------------
 def model_classes() -> dict[str, type]:
-    """The analytic models of :mod:`project.models` by name."""
+    """Return the analytic models of :mod:`project.models` by name."""
     from project import BRDF, models
 
     return {n: getattr(models, n) for n in models.__all__
@@ -128,7 +128,7 @@ def model_classes() -> dict[str, type]:
 
 
 def _param_value(text: str) -> Any:
-    """A number, a comma list of numbers, lists separated by ';', None, or a word."""
+    """Parse a number, a comma list of numbers, lists separated by ';', None, or a word."""
     if ";" in text:
         return [_param_value(part) for part in text.split(";") if part.strip()]
     if "," in text:
@@ -175,7 +175,7 @@ def parse_model(name: str, params: list[str]) -> Any:
 
 
 def _source(args: argparse.Namespace) -> Any:
-    """The BRDF named by MODEL (+ --param) or --merl."""
+    """Return the BRDF named by MODEL (+ --param) or --merl."""
     if args.merl is not None:
         if args.model is not None:
             raise UserError(f"give either MODEL or --merl, not both (got {args.model!r} and "
@@ -661,7 +661,7 @@ def _message(exc: BaseException) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``scatmodes`` console script; returns the exit status."""
+    """Run the ``scatmodes`` console script (its entry point); return the exit status."""
     args = _parser().parse_args(argv)
     prog = f"scatmodes {args.command}"
 

@@ -1,7 +1,10 @@
-"""What ``scatmodes demo`` shows: the bases, their sizes and measured orthonormality,
-pictures of the first Helmholtz surface scattering modes (the seed paper's Figure 1), two
-built-in models projected at a few orders (resolution against error), and a small Monte Carlo
-simulation of a Gaussian surface against Beckmann + Smith (Westin's Figure 6)."""
+"""What ``scatmodes demo`` shows.
+
+The bases, their sizes and measured orthonormality, pictures of the first Helmholtz surface
+scattering modes (Figure 1 of Koenderink, van Doorn & Stavridi 1996), two built-in models
+projected at a few orders (resolution against error), and a small Monte Carlo simulation of
+a Gaussian surface against Beckmann + Smith (Figure 6 of Westin, Arvo & Torrance 1992).
+"""
 
 from __future__ import annotations
 
@@ -22,7 +25,7 @@ __all__ = ["FIXED", "basis_table", "demo_models", "model_study", "modes_orthonor
 
 
 def orthonormality_error(b: basis.Basis) -> float:
-    """max |G - I| of the Gram matrix G computed with the basis' exact quadrature rule."""
+    """Return max |G - I| of the Gram matrix G computed with the basis' exact quadrature rule."""
     rule = b.exact_rule()
     v = b.eval(rule.points)
     g = v.T @ (rule.weights[:, None] * v)
@@ -30,7 +33,7 @@ def orthonormality_error(b: basis.Basis) -> float:
 
 
 def modes_orthonormality_error(modes: basis.HelmholtzModes) -> float:
-    """max |G - I| for Helmholtz modes on H x H with a product of exact hemisphere rules."""
+    """Return max |G - I| for Helmholtz modes on H x H with a product of exact hemisphere rules."""
     rule = modes.hemisphere.exact_rule()
     p, w = rule.points, rule.weights
     g = np.zeros((modes.size, modes.size))
@@ -42,7 +45,7 @@ def modes_orthonormality_error(modes: basis.HelmholtzModes) -> float:
 
 def basis_table(orders: tuple[int, ...] = (2, 4, 8, 16, 32), points: int = 20_000,
                 seed: int = 0) -> list[dict]:
-    """One row per (basis, order): size, orthonormality error, evaluation ns per function."""
+    """Return one row per (basis, order): size, orthonormality error, evaluation ns per function."""
     rng = np.random.default_rng(seed)
     w = rng.normal(size=(points, 3))
     w[:, 2] = np.abs(w[:, 2])
@@ -70,7 +73,7 @@ FIXED = ("ns per value", "resolution deg", "eval ns")
 
 
 def to_markdown(rows: list[dict]) -> str:
-    """A markdown table of dict rows (numbers in short scientific form, NaN as '-')."""
+    """Format dict rows as a markdown table (numbers in short scientific form, NaN as '-')."""
     keys = list(rows[0])
     lines = ["| " + " | ".join(keys) + " |", "|" + "---|" * len(keys)]
     for r in rows:
@@ -81,10 +84,11 @@ def to_markdown(rows: list[dict]) -> str:
 
 
 def plot_modes(path: str | Path, order: int = 4, theta_i: float = np.pi / 4) -> Path:
-    """Disk plots of every isotropic mode S_nm^l(theta_i, w_o) up to ``order``.
+    """Plot every isotropic mode S_nm^l(theta_i, w_o) up to ``order`` on a disk.
 
     Each panel shows the outgoing hemisphere on Lambert's equal-area disk (centre = normal,
-    rim = horizon, incident azimuth 0 to the right), as in the seed paper's Figure 1.
+    rim = horizon, incident azimuth 0 to the right), as in Figure 1 of Koenderink, van Doorn
+    & Stavridi (1996).
     """
     modes = basis.HelmholtzModes(order)
     r = np.linspace(0.0, 1.0, 61)  # equal-area radius rho = sqrt(2) sin(theta/2)
@@ -114,8 +118,11 @@ def plot_modes(path: str | Path, order: int = 4, theta_i: float = np.pi / 4) -> 
 
 # -- models ----------------------------------------------------------------------------------
 def demo_models() -> dict[str, Any]:
-    """The demo's two built-in models by file-name label: a glossy Phong lobe (no mirror
-    term, so the error is finite at every order) and a rough Beckmann Cook-Torrance."""
+    """Return the demo's two built-in models by file-name label.
+
+    A glossy Phong lobe (no mirror term, so the error is finite at every order) and a rough
+    Beckmann Cook-Torrance.
+    """
     from project import models
 
     return {"phong": models.Phong(0.3, 0.4, 20.0),
@@ -123,13 +130,13 @@ def demo_models() -> dict[str, Any]:
 
 
 def resolution_deg(order: int) -> float:
-    """180 deg / order: the half period of the highest degree kept (inf at order 0)."""
+    """Return 180 deg / order: the half period of the highest degree kept (inf at order 0)."""
     return 180.0 / order if order > 0 else float("inf")
 
 
 def model_study(brdf: Any, orders: tuple[int, ...],
                 kinds: tuple[str, ...] = ("zernike", "harmonics")) -> Any:
-    """compress.study of ``brdf`` at ``orders`` (odd harmonics skip order 0)."""
+    """Run compress.study of ``brdf`` at ``orders`` (odd harmonics skip order 0)."""
     from ..study import Study, study
 
     parts = [study(brdf, k, [o for o in orders if o > 0 or k != "harmonics"])
@@ -139,7 +146,7 @@ def model_study(brdf: Any, orders: tuple[int, ...],
 
 
 def resolution_rows(name: str, st: Any) -> list[dict]:
-    """Compact rows of a study: order, resolution, size, errors, evaluation time."""
+    """Return compact rows of a study: order, resolution, size, errors, evaluation time."""
     return [{"model": name, "basis": r["kind"], "order": r["order"],
              "resolution deg": resolution_deg(r["order"]), "coefficients": r["coefficients"],
              "l2": float(r["l2"]), "max abs 1/sr": float(r["max_abs"]),
@@ -149,8 +156,10 @@ def resolution_rows(name: str, st: Any) -> list[dict]:
 # -- simulation ------------------------------------------------------------------------------
 def simulate_demo(rays: int = 30_000, resolution: int = 64, seed: int = 1, order: int = 8,
                   progress: bool = False) -> dict[str, Any]:
-    """A small Westin-style run: mirror-faceted Gaussian surface (sigma/tau = 1/6.5) in
-    HemiZernike(order), compared with Beckmann + Smith (F = 1) at the measured roughness.
+    """Run a small simulation in the manner of Westin, Arvo & Torrance 1992.
+
+    A mirror-faceted Gaussian surface (sigma/tau = 1/6.5) in HemiZernike(order), compared
+    with Beckmann + Smith (F = 1) at the measured roughness.
 
     Returns a dict with ``lines`` (printable summary), ``curves`` (label -> BRDF-like object
     for :func:`plot_inplane`), ``title``, ``result`` and ``difference`` (relative Frobenius
@@ -188,7 +197,7 @@ def simulate_demo(rays: int = 30_000, resolution: int = 64, seed: int = 1, order
 
 def plot_inplane(path: str | Path, curves: dict[str, Any], incidences=(0.0, 30.0, 60.0),
                  title: str = "") -> Path:
-    """In-plane f cos(theta_o) at each incidence (degrees) for every object with ``eval``.
+    """Plot in-plane f cos(theta_o) at each incidence (degrees) for every object with ``eval``.
 
     Positive theta_o is the forward (specular) side.
     """
