@@ -13,6 +13,13 @@ estimate of the coefficient matrix of f cos(theta_i) cos(theta_o) in any hemisph
 - :func:`woven_cloth`: a plain weave of threads scattering with a simulated thread BRDF.
 - :func:`trace`: paths for one incident direction (exit directions, weights, bounces).
 - :func:`simulate`: the coefficient matrix with Q, standard errors and energy balance.
+
+References
+----------
+Westin, S. H., Arvo, J. R. and Torrance, K. E. Predicting reflectance functions from
+complex surfaces. Computer Graphics 26(2) (SIGGRAPH '92 Proceedings), 255-264, 1992.
+Reprinted in the SIGGRAPH 2001 course notes "State of the Art in Modeling and Measuring of
+Surface Reflection" (Shirley, Marschner, Stam, Ashikhmin).
 """
 
 from .bvh import BVH, Mesh

@@ -46,12 +46,12 @@ ROULETTE = 0.05
 
 
 def _alloc(n: int) -> tuple:
-    """The outputs of n paths: directions (n, 3), weights, bounces, absorbed, lost (n,)."""
+    """Allocate the outputs of n paths: directions (n, 3), weights, bounces, absorbed, lost (n,)."""
     return (np.empty((n, 3)), np.empty(n), np.empty(n, np.int64), np.empty(n), np.empty(n))
 
 
 def incident_directions(count: int, seed: np.uint64, start: int, cosine: bool) -> NDArray:
-    """(count, 3) incident directions: cosine (pdf z / pi) or uniform (pdf 1 / (2 pi))."""
+    """Draw (count, 3) incident directions: cosine (pdf z / pi) or uniform (pdf 1 / (2 pi))."""
     out = np.empty((count, 3))
     _incident_kernel(seed, np.uint64(start), cosine, out)
     return out
@@ -192,10 +192,12 @@ def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
 
 @njit(inline="always")
 def _grid_step(o, d, p, size, tol):
-    """Along one axis of a grid of cells of width ``size``: the cell index of the ray
-    (origin o, direction d) at its position p, and the distance t at which it leaves that
-    cell. On a cell boundary (within tol * size) the cell it is entering is taken, else the
-    walk would make zero-length steps."""
+    """Step along one axis of a grid of cells of width ``size``.
+
+    Returns the cell index of the ray (origin o, direction d) at its position p, and the
+    distance t at which it leaves that cell. On a cell boundary (within tol * size) the cell
+    it is entering is taken, else the walk would make zero-length steps.
+    """
     i = int(np.floor(p / size))
     if d > 0.0:
         if (i + 1) * size - p <= tol * size:
@@ -256,8 +258,11 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
 
 @njit(inline="always")
 def _launch(dirs, b, zs, lx, ly, s):
-    """Start of a ray of incidence dirs[b]: above the highest point z = zs on the line through
-    a uniform point of the mean plane's period (lx x ly), travelling towards the surface."""
+    """Start a ray of incidence dirs[b] above the surface.
+
+    The origin lies above the highest point, at z = zs, on the line through a uniform point
+    of the mean plane's period (lx x ly); the ray travels towards the surface.
+    """
     u1, s = _uniform(s)
     u2, s = _uniform(s)
     k = zs / dirs[b, 2]
@@ -270,11 +275,14 @@ def _launch(dirs, b, zs, lx, ly, s):
 
 @njit(inline="always")
 def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, front, w, absorbed, rr, s):
-    """One facet event for a ray travelling along d that hit a facet of normal g (facing the
-    ray; ``front`` says whether the ray arrived on the primitive's outer side): mirror
-    reflection weighted by Fresnel, or a cosine-distributed diffuse bounce weighted by the
-    albedo, then Russian roulette (survive with probability w / rr at weight rr).
-    Returns the new direction, weight (0 when the ray dies), absorbed energy and stream."""
+    """Apply one opaque facet event to a ray.
+
+    The ray travels along d and hit a facet of normal g (facing the ray; ``front`` says
+    whether the ray arrived on the primitive's outer side): mirror reflection weighted by
+    Fresnel, or a cosine-distributed diffuse bounce weighted by the albedo, then Russian
+    roulette (survive with probability w / rr at weight rr).
+    Returns the new direction, weight (0 when the ray dies), absorbed energy and stream.
+    """
     ci = -(dx * gx + dy * gy + dz * gz)
     if code == MIRROR:
         f = _fresnel1(min(1.0, max(0.0, ci)), ior, kext)
@@ -297,8 +305,11 @@ def _scatter(code, ior, kext, alb, dx, dy, dz, gx, gy, gz, front, w, absorbed, r
 
 @njit(inline="always")
 def _roulette(w, rr, s):
-    """Russian roulette: a weight below rr survives with probability w / rr at weight rr
-    (unbiased: the expected weight is w), else becomes 0. One draw, only when w < rr."""
+    """Play Russian roulette with the weight w.
+
+    A weight below rr survives with probability w / rr at weight rr (unbiased: the expected
+    weight is w), else becomes 0. One draw, only when w < rr.
+    """
     if w < rr:
         u1, s = _uniform(s)
         w = rr if u1 * rr < w else 0.0
@@ -307,9 +318,11 @@ def _roulette(w, rr, s):
 
 @njit(inline="always")
 def _dielectric(ior, dx, dy, dz, gx, gy, gz, front, w, rr, s):
-    """One event at a smooth dielectric facet of relative index ``ior`` for a ray along d
-    that hit it with normal g facing the ray; ``front``: the ray arrives from outside (it
-    would enter, relative index n) or from inside (it would leave, 1 / n).
+    """Reflect or refract a ray at a smooth dielectric facet (one event).
+
+    The facet has relative index ``ior``; the ray travels along d and hit it with normal g
+    facing the ray; ``front``: the ray arrives from outside (it would enter, relative index
+    n) or from inside (it would leave, 1 / n).
 
     Reflects with the exact unpolarised Fresnel probability F (_fresnel1 with k = 0: it
     handles relative indices below 1 and gives F = 1 beyond the critical angle), else
@@ -317,7 +330,8 @@ def _dielectric(ior, dx, dy, dz, gx, gy, gz, front, w, rr, s):
     keeps the weight unchanged (unbiased: the expected contribution of each branch is F,
     resp. 1 - F, times the weight), so only absorption along segments (_attenuate) and
     roulette change it. One uniform draw for the choice, then _roulette.
-    Returns (new direction, weight, stream, refracted)."""
+    Returns (new direction, weight, stream, refracted).
+    """
     ci = min(1.0, max(0.0, -(dx * gx + dy * gy + dz * gz)))
     eta = ior if front else 1.0 / ior  # n2 / n1 across the facet
     f = _fresnel1(ci, eta, 0.0)
@@ -343,9 +357,11 @@ def _dielectric(ior, dx, dy, dz, gx, gy, gz, front, w, rr, s):
 
 @njit(inline="always")
 def _attenuate(sigma, t, w, absorbed):
-    """Beer-Lambert loss over a segment of length t in a medium of absorption sigma: the
-    weight keeps exp(-sigma t), the rest is added to ``absorbed`` (the two sum to the old
-    weight up to rounding). Returns (w, absorbed)."""
+    """Apply the Beer-Lambert loss over a segment of length t in a medium of absorption sigma.
+
+    The weight keeps exp(-sigma t), the rest is added to ``absorbed`` (the two sum to the
+    old weight up to rounding). Returns (w, absorbed).
+    """
     if sigma > 0.0:
         loss = -w * np.expm1(-sigma * t)
         absorbed += loss
@@ -355,8 +371,11 @@ def _attenuate(sigma, t, w, absorbed):
 
 @njit(inline="always")
 def _next_origin(px, py, pz, side, gx, gy, gz, lx, ly):
-    """Origin of the next segment: the hit point moved by ``side`` along the facet normal g
-    (positive: the side the normal faces) and wrapped into the period [0, lx) x [0, ly)."""
+    """Return the origin of the next segment.
+
+    It is the hit point moved by ``side`` along the facet normal g (positive: the side the
+    normal faces) and wrapped into the period [0, lx) x [0, ly).
+    """
     ox = px + side * gx
     oy = py + side * gy
     ox -= np.floor(ox / lx) * lx

@@ -181,7 +181,7 @@ class Mesh:
                    np.array(faces, dtype=np.int64))
 
     def triangles(self) -> NDArray[np.float64]:
-        """(F, 3, 3) corner positions of every triangle."""
+        """Return the (F, 3, 3) corner positions of every triangle."""
         return self.vertices[self.faces]
 
     def __repr__(self) -> str:
@@ -258,7 +258,7 @@ class BVH:
 
     def intersect(self, origins: ArrayLike, directions: ArrayLike, *,
                   tmax: float = np.inf) -> tuple[NDArray, NDArray, NDArray]:
-        """First hits of rays with the stored primitives (no periodic walk).
+        """Find the first hits of rays with the stored primitives (no periodic walk).
 
         Parameters
         ----------
@@ -269,9 +269,12 @@ class BVH:
 
         Returns
         -------
-        t : (n,) ndarray -- hit distance (inf on a miss)
-        prim : (n,) ndarray of int64 -- input primitive index (``source``; -1 on a miss)
-        normal : (n, 3) ndarray -- unit normal facing the incoming ray (0 on a miss)
+        t : (n,) ndarray
+            Hit distance (inf on a miss).
+        prim : (n,) ndarray of int64
+            Input primitive index (``source``; -1 on a miss).
+        normal : (n, 3) ndarray
+            Unit normal facing the incoming ray (0 on a miss).
         """
         o = np.ascontiguousarray(origins, dtype=np.float64).reshape(-1, 3)
         d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
@@ -287,13 +290,22 @@ class BVH:
 
     def intersect_periodic(self, origins: ArrayLike, directions: ArrayLike, *,
                            max_steps: int = 100_000) -> tuple[NDArray, NDArray, NDArray, NDArray]:
-        """First hits in the periodic tiling (needs ``period``); origins may lie anywhere.
+        """Find the first hits in the periodic tiling (needs ``period``).
+
+        Parameters
+        ----------
+        origins, directions : (n, 3) array_like of float
+            Ray origins (anywhere) and (unit) directions.
+        max_steps : int
+            Cap on the period cells walked per ray.
 
         Returns
         -------
-        status : (n,) int64 -- 0 hit, 1 escaped upwards, 2 lost (fell through or step cap)
-        t, prim, normal : as :meth:`intersect` (prim is the input index of the primitive
-        whose periodic copy was hit)
+        status : (n,) ndarray of int64
+            0 hit, 1 escaped upwards, 2 lost (fell through or step cap).
+        t, prim, normal : ndarray
+            As :meth:`intersect` (prim is the input index of the primitive whose periodic
+            copy was hit).
         """
         if self.period is None:
             raise ValueError("intersect_periodic needs a BVH built with a period")
@@ -396,9 +408,11 @@ def _tile(pt, pd, lo, hi, src, per):
 
 def _build(plo: NDArray, phi: NDArray, build: str = "sah", max_depth: int = _STACK - 1
            ) -> tuple[NDArray, NDArray, NDArray, NDArray, int]:
-    """Hierarchy over boxes (P, 3): (primitive order, node lo, node hi, node link, depth).
+    """Build the hierarchy over boxes (P, 3).
 
-    Every leaf lies at depth <= ``max_depth`` (given P <= LEAF 2^max_depth)."""
+    Returns (primitive order, node lo, node hi, node link, depth). Every leaf lies at depth
+    <= ``max_depth`` (given P <= LEAF 2^max_depth).
+    """
     n = plo.shape[0]
     plo = np.ascontiguousarray(plo, dtype=np.float64)
     phi = np.ascontiguousarray(phi, dtype=np.float64)

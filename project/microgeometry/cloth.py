@@ -1,9 +1,11 @@
 """Woven cloth: a plain weave of threads whose surface scatters with a simulated thread BRDF.
 
-Recursion (Westin et al. 1992, sec. 5): the coefficient matrix of one simulation -- e.g.
-parallel fibres, the inside of a thread -- becomes the microscale BRDF of the next, the
-surface of the threads of a cloth, through :class:`project.MatrixBRDF` (evaluation and
-importance sampling of a matrix) and :class:`~project.microgeometry.MicroBRDF`.
+Recursion (Westin, Arvo & Torrance 1992, sec. 5.4, where the thread BRDF came from a
+simulation of the parallel cylinders of their sec. 5.2): the coefficient matrix of one
+simulation -- e.g. parallel fibres, the inside of a thread -- becomes the microscale BRDF of
+the next, the surface of the threads of a cloth, through :class:`project.MatrixBRDF`
+(evaluation and importance sampling of a matrix) and
+:class:`~project.microgeometry.MicroBRDF`.
 
 Geometry (one period of 2 s x 2 s, s the thread spacing): two threads along x, at
 y = (j + 1/2) s, and two along y, at x = (i + 1/2) s (i, j = 0, 1), each a swept tube of
@@ -47,7 +49,7 @@ def woven_cloth(
     negative: str = "raise",
     tol: float = 1e-2,
 ) -> Scene:
-    """A plain-weave cloth whose threads scatter with ``thread``, on a base plane.
+    """Build a plain-weave cloth whose threads scatter with ``thread``, on a base plane.
 
     Parameters
     ----------
@@ -73,9 +75,11 @@ def woven_cloth(
     base_height : float, optional
         Height of the base plane (default -(h + r): it touches the lowest points of the
         threads).
-    negative, tol
+    negative : {"raise", "clamp"}
         Passed to :class:`project.MatrixBRDF`: a thread matrix with negative lobes beyond
         ``tol`` raises unless ``negative="clamp"`` (then see ``MatrixBRDF.clamp_bias``).
+    tol : float
+        Relative tolerance of negative values, passed to :class:`project.MatrixBRDF`.
 
     Returns
     -------
@@ -145,9 +149,12 @@ def woven_cloth(
 
 def _tube(axis: str, position: float, amplitude: float, s: float, r: float, segments: int,
           sides: int) -> tuple[NDArray, NDArray, NDArray]:
-    """Vertices ((segments + 1) * sides, 3), faces (2 segments sides, 3) and face tangents
-    (2 segments sides, 3) (the centreline's unit tangent at the middle of each face's ring
-    segment) of one thread over one period."""
+    """Build one thread over one period as a swept tube.
+
+    Returns vertices ((segments + 1) * sides, 3), faces (2 segments sides, 3) and face
+    tangents (2 segments sides, 3) (the centreline's unit tangent at the middle of each
+    face's ring segment).
+    """
     u = 2.0 * s * np.arange(segments + 1) / segments
     z = amplitude * np.sin(np.pi * u / s)
     c = _along(axis, u, position, z)
@@ -178,8 +185,10 @@ def _tube(axis: str, position: float, amplitude: float, s: float, r: float, segm
 
 
 def _along(axis: str, along: NDArray, across: float, z: NDArray) -> NDArray:
-    """(n, 3) points or vectors with components ``along`` the thread axis, ``across`` it
-    (horizontal) and ``z``."""
+    """Return (n, 3) points or vectors from their components along a thread.
+
+    The components are ``along`` the thread axis, ``across`` it (horizontal) and ``z``.
+    """
     a = np.broadcast_to(along, z.shape)
     b = np.full_like(z, across)
     return np.stack([a, b, z] if axis == "x" else [b, a, z], -1)

@@ -1,22 +1,28 @@
 """The Monte Carlo estimator of the coefficient matrix (Westin et al. 1992, eqs 17 and 25).
 
-Corrected constants (digest 2.6, re-derived for hemisphere-orthonormal bases). For incident
-flux uniform over the mean plane, a ray arriving from U leaves in direction V with energy R,
-and E[R delta(V - .)] = f(U, V) cos(theta_o). The coefficient of q = f cos_i cos_o is
+Constants. The estimators printed by Westin, Arvo & Torrance (1992, sec. 3, eqs 16-17, and
+sec. 4.6, eq 25) are written for rho and leave out the density of the incident directions
+(their sec. 2.5 represents rho cos(theta_i) cos(theta_r) but omits this from the formulas);
+the constants below are derived here for hemisphere-orthonormal bases. For incident flux
+uniform over the mean plane, a ray arriving from U leaves in direction V with energy R, and
+E[R delta(V - .)] = f(U, V) cos(theta_o). The coefficient of q = f cos_i cos_o is
 
     M_jk = int_H int_H b_j(U) f(U, V) cos_i cos_o b_k(V) dU dV
          = E_U[ b_j(U) cos_i / p(U) * E[R b_k(V) | U] ],
 
 so per traced ray: M += c(U) R b(U) b(V)^T / N with c = pi for cosine-distributed U
 (p = cos_i / pi) and c = 2 pi cos_i for U uniform in solid angle (p = 1 / (2 pi)). With
-full-sphere harmonics and odd completion (Westin's convention) these become 4 pi and
-8 pi cos_i (digest 2.6); every basis of this library is orthonormal on its own domain and q
-vanishes below the horizon, so c is the same for all of them. Check: a flat Lambertian plane
-of albedo a gives pi a E[b(U)] E[b(V)]^T = project(Lambert(a), basis) (tests).
+full-sphere harmonics and Westin's odd completion across the equator (sec. 2.5) these
+become 4 pi and 8 pi cos_i: the full-sphere coefficient of a function completed as odd in
+each argument is twice its hemisphere integral in each argument. Every basis of this
+library is orthonormal on its own domain and q vanishes below the horizon, so c is the
+same for all of them. Check: a flat Lambertian plane of albedo a gives
+pi a E[b(U)] E[b(V)]^T = project(Lambert(a), basis) (verified by the test suite).
 
-Amortisation (eq 25): b(U) is evaluated once per incident direction, shared by ``targets``
-rays aimed at different points of the period; the exit sums S_U = sum R b(V) are formed per
-direction, and one (D, K)^T (D, K) product per chunk adds them to M.
+Amortisation (Westin et al. 1992, sec. 4.6, eq 25): b(U) is evaluated once per incident
+direction, shared by ``targets`` rays aimed at different points of the period; the exit sums
+S_U = sum R b(V) are formed per direction, and one (D, K)^T (D, K) product per chunk adds
+them to M.
 """
 
 from __future__ import annotations
@@ -56,7 +62,9 @@ class SimulationResult:
     raw : (K, K) ndarray
         The unsymmetrised estimate M~ (rows: incident basis function).
     asymmetry : float
-        Westin's Q (eq 27 corrected, digest 2.9): (1/K^2) sum_jk |M~_jk - M~_kj|.
+        Westin's convergence measure Q (Westin et al. 1992, sec. 4.7, eqs 26-27), the mean
+        absolute asymmetry (1/K^2) sum_jk |M~_jk - M~_kj|: the printed eq 27 normalises by
+        1/N^2 and sums |A_ij|, read here as 1/K^2 (K x K matrix) and |A_jk|.
     stderr : (K, K) ndarray
         Batch-means standard error of each entry of the symmetrised matrix (one batch per
         chunk of incident directions; NaN with fewer than 2 chunks). With c chunks it has
@@ -171,7 +179,7 @@ def simulate(
     resume: str | os.PathLike | None = None,
     progress: bool | None = None,
 ) -> SimulationResult:
-    """Monte Carlo estimate of the coefficient matrix of f cos(theta_i) cos(theta_o).
+    """Estimate the coefficient matrix of f cos(theta_i) cos(theta_o) by Monte Carlo.
 
     Parameters
     ----------

@@ -111,7 +111,7 @@ class MicroBRDF(Material):
 
     Notes
     -----
-    Directional-diffuse scattering (Westin et al. 1992, sec. 4.3, eqs 23-24) with one
+    Directional-diffuse scattering (Westin et al. 1992, sec. 4.4, eqs 23-24) with one
     importance-sampled ray per event instead of n uniformly spread rays, and Russian roulette
     instead of branching. The new direction is drawn from a mixture of the cosine density and,
     for CookTorrance (Beckmann, GGX), Phong and BlinnPhong, a sampler of the model's lobe, or

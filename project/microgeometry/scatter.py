@@ -3,8 +3,8 @@
 One event, for n rays at once, in the facet's local frame (z = facet normal): given the
 direction towards the light w_i and uniforms u, choose w_o and the weight factor
 f(w_i, w_o) cos(theta_o) / pdf(w_o), so that E[factor delta(w - w_o)] = f(w_i, w) cos(theta)
-(unbiased; Westin et al. 1992 eqs 23-24 with one importance-sampled ray instead of n
-uniform ones).
+(unbiased; Westin et al. 1992, sec. 4.4, eqs 23-24, with one importance-sampled ray instead
+of n uniform ones).
 
 Sampling the smooth part: the one-sample mixture (balance-heuristic) density
 
@@ -90,7 +90,7 @@ class FacetSampler:
         self.uniforms = 2 + (self.lobe is not None) + bool(self.deltas)
 
     def scatter(self, wi: NDArray, u: NDArray) -> tuple[NDArray, NDArray]:
-        """New directions and weight factors for n events.
+        """Draw new directions and weight factors for n events.
 
         Parameters
         ----------
@@ -206,7 +206,7 @@ class FacetSampler:
 
 
 def _lobe_of(brdf: object) -> tuple[str | None, float, float]:
-    """(sampler name, its parameter, Lambertian kd) for the models with a lobe sampler."""
+    """Return (sampler name, its parameter, Lambertian kd) for the models with a lobe sampler."""
     from project.models import BlinnPhong, CookTorrance, Phong
 
     if callable(getattr(brdf, "sample", None)) and callable(getattr(brdf, "pdf", None)):
@@ -224,7 +224,7 @@ def _lobe_of(brdf: object) -> tuple[str | None, float, float]:
 
 
 def _cosine(u1: NDArray, u2: NDArray) -> NDArray:
-    """Cosine-distributed unit vectors about z (pdf cos(theta) / pi)."""
+    """Return cosine-distributed unit vectors about z (pdf cos(theta) / pi)."""
     r = np.sqrt(u1)
     phi = 2.0 * np.pi * u2
     return np.stack([r * np.cos(phi), r * np.sin(phi), np.sqrt(np.maximum(1.0 - u1, 0.0))],
@@ -232,14 +232,14 @@ def _cosine(u1: NDArray, u2: NDArray) -> NDArray:
 
 
 def _around_z(cz: NDArray, u2: NDArray) -> NDArray:
-    """Unit vectors with z = cz and azimuth 2 pi u2."""
+    """Return unit vectors with z = cz and azimuth 2 pi u2."""
     s = np.sqrt(np.maximum((1.0 - cz) * (1.0 + cz), 0.0))
     phi = 2.0 * np.pi * u2
     return np.stack([s * np.cos(phi), s * np.sin(phi), cz], axis=-1)
 
 
 def _rotate(axis: NDArray, v: NDArray) -> NDArray:
-    """v given in a frame whose z is the unit ``axis`` (Duff et al. 2017 basis), in world."""
+    """Express v, given in a frame whose z is the unit ``axis`` (Duff et al. 2017), in world."""
     nx, ny, nz = axis[:, 0], axis[:, 1], axis[:, 2]
     sign = np.where(nz >= 0.0, 1.0, -1.0)
     a = -1.0 / (sign + nz)
@@ -250,7 +250,9 @@ def _rotate(axis: NDArray, v: NDArray) -> NDArray:
 
 
 def facet_frame(g: NDArray) -> tuple[NDArray, NDArray]:
-    """Tangent t and bitangent b of facets with unit normals g (g_z > 0), shape (n, 3) each.
+    """Return the tangent t and bitangent b of facets with unit normals g (g_z > 0).
+
+    Both have shape (n, 3).
 
     t is the world x axis projected onto the facet plane, so anisotropic microscale BRDFs
     keep their x axis along the mean plane's x; (t, b, g) is right-handed.

@@ -250,7 +250,9 @@ class Scene:
     # -- views --------------------------------------------------------------------------------
 
     def rotated(self) -> Scene:
-        """The scene turned by +90 degrees about z: (x, y) -> (Ly - y, x), period (Ly, Lx).
+        """Return the scene turned by +90 degrees about z: (x, y) -> (Ly - y, x).
+
+        The period becomes (Ly, Lx).
 
         Facet-frame tangents (``add_mesh``) turn with it, (x, y) -> (-y, x); parts without
         them keep the world x axis as their frame's x, so anisotropic MicroBRDF facets turn
@@ -326,7 +328,7 @@ class Scene:
         return np.concatenate(pt), np.concatenate(pd), np.concatenate(mats)
 
     def fingerprint(self) -> str:
-        """SHA-256 of the period, the parts and their materials (checkpoint identity)."""
+        """Return the SHA-256 of the period, the parts and their materials (checkpoint identity)."""
         d = hashlib.sha256()
         d.update(self.period.tobytes())
         for (kind, rows, mat), tan in zip(self._parts, self._tangents, strict=True):
@@ -381,7 +383,7 @@ class Scene:
 def brushed_metal(radius: float, spacing: float, *, height: float = 0.0,
                   material: Material | None = None, direction: str = "x",
                   roughness: float | None = None) -> Scene:
-    """Brushed metal: parallel cylinders of ``radius`` every ``spacing`` on a base plane.
+    """Build brushed metal: parallel cylinders of ``radius`` every ``spacing`` on a base plane.
 
     Parameters
     ----------
@@ -446,7 +448,7 @@ def brushed_metal(radius: float, spacing: float, *, height: float = 0.0,
 
 
 def _rough_metal(material: Material | None, roughness: object) -> Material:
-    """MicroBRDF(CookTorrance(0, roughness)) with the Fresnel of the Mirror ``material``."""
+    """Return MicroBRDF(CookTorrance(0, roughness)) with the Fresnel of the Mirror ``material``."""
     from project.models import CookTorrance
 
     ok = isinstance(roughness, (int, float, np.number)) and not isinstance(roughness, bool)

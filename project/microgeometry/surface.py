@@ -4,8 +4,11 @@ A height field h[j, i] on a regular grid (x = i dx, y = j dy) is tiled periodica
 period (nx dx, ny dy) and triangulated: cell (i, j) is split along its (0, 0)-(1, 1)
 diagonal into triangle A (corners 00, 10, 11; u >= v) and triangle B (00, 11, 01; v >= u),
 u, v the local coordinates in [0, 1]. Periodic tiling removes the edge and target-area
-problems of a finite patch (Westin et al. 1992, sec. 4.5, needed a 2.4 mm margin around a
-3.1 mm target). The traversal structure is a max-height mip pyramid over the cells.
+problems of a finite patch: Westin, Arvo & Torrance (1992) aim their rays at a target region
+that must lie well inside the modelled geometry (sec. 4.5), and for their Gaussian surface
+(sec. 5.1) used a 3.13 mm patch in the centre of an 8 x 8 mm model, i.e. a margin of
+(8 - 3.13) / 2 = 2.4 mm on each side. The traversal structure is a max-height mip pyramid
+over the cells.
 """
 
 from __future__ import annotations
@@ -106,7 +109,9 @@ class Heightfield:
         return 2 * self.heights.size
 
     def slopes(self) -> NDArray[np.float64]:
-        """(2 ny nx, 2) facet slopes (dh/dx, dh/dy) of every triangle (A then B of each cell).
+        """Return the (2 ny nx, 2) facet slopes (dh/dx, dh/dy) of every triangle.
+
+        The rows hold triangle A then B of each cell.
 
         All triangles have the same projected area, so plain averages over these rows are
         averages over the mean plane.
@@ -125,13 +130,16 @@ class Heightfield:
         """Measured Beckmann RMS slope m = sqrt(<(dh/dx)^2 + (dh/dy)^2>) of the mesh.
 
         For a Beckmann distribution m^2 = <tan^2 theta_h>; compare the simulation against
-        this measured value, since triangulation lowers the slope variance (digest 2.10).
+        this measured value, since triangulation lowers the slope variance: a facet's slope
+        is a difference quotient over one grid step dx, whose variance for the Gaussian
+        autocorrelation sigma^2 exp(-r^2 / tau^2) is that of the continuous surface times
+        (1 - exp(-dx^2 / tau^2)) / (dx^2 / tau^2).
         """
         s = self.slopes()
         return float(np.sqrt(np.mean(np.sum(s * s, axis=1))))
 
     def fingerprint(self) -> str:
-        """SHA-256 of heights, spacing and material: identifies the specimen in checkpoints."""
+        """Return the SHA-256 of heights, spacing and material (the specimen's checkpoint id)."""
         d = hashlib.sha256()
         d.update(np.ascontiguousarray(self.heights).tobytes())
         d.update(str(self.heights.shape).encode())
@@ -153,14 +161,15 @@ class GaussianSurface(Heightfield):
         RMS height > 0 (the sample standard deviation is set to exactly ``sigma``).
     tau : float
         Correlation length > 0: the autocorrelation is sigma^2 exp(-r^2 / tau^2) (He et al.
-        1991), so the Beckmann RMS slope is m = 2 sigma / tau.
+        1991, eq 48), so the Beckmann RMS slope is m = 2 sigma / tau.
     resolution : int
         Grid points per side (the period holds resolution^2 points and 2 resolution^2
         triangles). Default 128.
     spacing : float, optional
-        Grid spacing. Default tau / 4: triangulation then lowers the per-axis slope variance
-        by the factor (1 - exp(-1/16)) * 16 = 0.969 (digest 2.10), i.e. m is 1.6 % low;
-        :attr:`roughness` reports the measured m.
+        Grid spacing dx. Default tau / 4: triangulation then lowers the per-axis slope
+        variance by the factor (1 - exp(-dx^2 / tau^2)) / (dx^2 / tau^2)
+        = (1 - exp(-1/16)) * 16 = 0.969 (computed from the autocorrelation, see
+        :attr:`roughness`), i.e. m is 1.5 % low; :attr:`roughness` reports the measured m.
     seed : int
         Seed of the white noise (numpy ``default_rng``).
     material : Material, optional
@@ -171,7 +180,13 @@ class GaussianSurface(Heightfield):
     White noise w on the grid is filtered in Fourier space by exp(-|k|^2 tau^2 / 8), which
     gives the power spectrum exp(-|k|^2 tau^2 / 4), i.e. the autocorrelation
     exp(-r^2 / tau^2); the result is shifted to zero mean and scaled to RMS ``sigma``. With
-    the defaults the period is 32 tau, about 800 correlation areas.
+    the defaults the period is 32 tau, an area of 1024 tau^2: about 330 correlation areas
+    pi tau^2 (the integral of exp(-r^2 / tau^2) over the plane).
+
+    References
+    ----------
+    He, X. D., Torrance, K. E., Sillion, F. X. and Greenberg, D. P. A comprehensive physical
+    model for light reflection. Computer Graphics 25(4) (SIGGRAPH '91), 175-186, 1991.
 
     Examples
     --------
@@ -223,7 +238,7 @@ def _positive(value: object, name: str) -> float:
 
 
 def _max_pyramid(h: NDArray[np.float64]) -> tuple[NDArray, NDArray, int]:
-    """Max-height mip pyramid of the cells, flattened level after level.
+    """Build the max-height mip pyramid of the cells, flattened level after level.
 
     Level 0 holds, per cell (i, j), the max of its four corners (periodic); level L + 1 the
     max over 2 x 2 nodes of level L, while both dimensions stay even. Returns the flat

@@ -1,5 +1,6 @@
-"""Paths of rays through a specimen: :func:`trace` and :class:`Paths`, and the numba path loop
-of height fields.
+"""Paths of rays through a specimen: :func:`trace`, :class:`Paths`, the height-field loop.
+
+The numba path loop of height fields is ``_trace_kernel``.
 
 ``_trace_kernel`` follows every ray from its start above the surface through the max-pyramid
 walk to the next facet, the facet event (Fresnel mirror or cosine-diffuse bounce, then
@@ -47,11 +48,18 @@ __all__ = ["Paths", "trace"]
 class Paths(NamedTuple):
     """Per-ray outcome of :func:`trace` (n rays).
 
-    directions : (n, 3) exit directions (z > 0); (0, 0, 1) for rays with zero weight.
-    weights : (n,) exit energy (1 per incident ray; 0 when absorbed or killed by roulette).
-    bounces : (n,) int, facet interactions before leaving.
-    absorbed : (n,) energy absorbed by facets along the path.
-    lost : (n,) energy of paths cut off unresolved (bounce or step cap; normally 0).
+    Attributes
+    ----------
+    directions : (n, 3) ndarray
+        Exit directions (z > 0); (0, 0, 1) for rays with zero weight.
+    weights : (n,) ndarray
+        Exit energy (1 per incident ray; 0 when absorbed or killed by roulette).
+    bounces : (n,) ndarray of int64
+        Facet interactions before leaving.
+    absorbed : (n,) ndarray
+        Energy absorbed by facets along the path.
+    lost : (n,) ndarray
+        Energy of paths cut off unresolved (bounce or step cap; normally 0).
     """
 
     directions: NDArray[np.float64]
@@ -110,8 +118,11 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
 
 def _run(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64, start: int,
          out: tuple, max_bounces: int = MAX_BOUNCES, max_steps: int = MAX_STEPS) -> None:
-    """Trace ``per`` rays for each incident direction in ``dirs`` (B, 3); rays of direction b
-    are rows b * per ... (b + 1) * per - 1 of the outputs, global ray index start + row."""
+    """Trace ``per`` rays for each incident direction in ``dirs`` (B, 3).
+
+    The rays of direction b are rows b * per ... (b + 1) * per - 1 of the outputs, with
+    global ray index start + row.
+    """
     if surface.material.code == MICRO:
         run_wavefront(surface, dirs, per, seed, start, out, max_bounces, max_steps)
         return

@@ -1,6 +1,8 @@
 """Velvet: a pile of thin transparent fibres with randomly perturbed tilt over an absorbing base.
 
-Westin et al. (1992, sec. 5) simulated velvet as fibres standing on a backing; here every
+Westin, Arvo & Torrance (1992, sec. 5.3) simulated velvet as a forest of narrow cylinders
+with randomly perturbed angles: transparent ideal-specular plastic fibres, which reflect a
+ray with the Fresnel probability or transmit it, over a base plane that absorbs. Here every
 fibre is a capped tube (a closed solid) of a :class:`~project.microgeometry.Dielectric`
 material, so each hit reflects with the Fresnel probability or refracts into the fibre, where
 light is absorbed along its path, and the base below absorbs what gets through the pile.
@@ -20,7 +22,7 @@ __all__ = ["velvet"]
 def velvet(radius: float, length: float, density: float, *, tilt: float = 0.25,
            ior: float = 1.5, absorption: float = 0.0, base: Material | None = None,
            count: int = 200, seed: int = 0) -> Scene:
-    """Velvet: ``count`` transparent fibres per period, standing on a base plane.
+    """Build velvet: ``count`` transparent fibres per period, standing on a base plane.
 
     Parameters
     ----------
@@ -71,9 +73,10 @@ def velvet(radius: float, length: float, density: float, *, tilt: float = 0.25,
     Fibre positions are uniform over the period (a Poisson pile); neighbouring fibres may
     intersect, which the tracer handles by its inside/outside rule (see
     :class:`~project.microgeometry.Dielectric`). Each fibre is planted in the base: its
-    axis crosses the plane z = 0 at its foot point and continues r (1 + tan(tilt)) below
-    it, so the bottom cap lies entirely under the opaque plane and light inside a fibre meets
-    the base itself (which reflects it back into the fibre, absorption continuing).
+    axis crosses the plane z = 0 at its foot point and continues r (1 + tan(theta)) below
+    it (theta: the fibre's own tilt, at most ``tilt``), so the bottom cap lies entirely
+    under the opaque plane and light inside a fibre meets the base itself (which reflects
+    it back into the fibre, absorption continuing).
 
     Examples
     --------

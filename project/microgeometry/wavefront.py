@@ -113,7 +113,7 @@ def run_scene_wavefront(bvh: BVH, period: NDArray, materials: Sequence[Material]
 def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float, ly: float,
              dirs: NDArray, per: int, seed: np.uint64, start: int, out: tuple,
              tangents: NDArray | None = None) -> None:
-    """The bounce loop shared by height fields and scenes (see the module docstring).
+    """Run the bounce loop shared by height fields and scenes (see the module docstring).
 
     ``step(act, o, d, w, nb, lost, status, g, mid, front, prim)`` advances the live rays
     ``act`` to their next facet: it writes ``status`` (hit, escaped, lost) per row of
@@ -171,9 +171,11 @@ def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float
 
 def _micro_event(sampler: FacetSampler, rows: NDArray, d: NDArray, g: NDArray, w: NDArray,
                  absorbed: NDArray, s: NDArray, tangents: NDArray | None = None) -> None:
-    """One MicroBRDF event for the rays ``rows`` (directions, weights, streams updated);
-    ``tangents`` (len(rows), 3) unit x axes of the facet frames before projection, or
-    None (world x)."""
+    """Apply one MicroBRDF event to the rays ``rows`` (directions, weights, streams updated).
+
+    ``tangents`` (len(rows), 3): unit x axes of the facet frames before projection, or None
+    (world x).
+    """
     gh = g[rows]
     t, b = _frame(gh) if tangents is None else _tangent_frame(gh, tangents)
     wi = -d[rows]
@@ -192,8 +194,11 @@ def _micro_event(sampler: FacetSampler, rows: NDArray, d: NDArray, g: NDArray, w
 
 
 def _frame(g: NDArray) -> tuple[NDArray, NDArray]:
-    """(t, b) of ``scatter.facet_frame``, with the projected world y as t where the
-    projected x vanishes (|g_x| > _SIDE); (t, b, g) right-handed, shapes (n, 3)."""
+    """Return (t, b) of ``scatter.facet_frame``, also on facets that face along x.
+
+    The projected world y is t where the projected x vanishes (|g_x| > _SIDE); (t, b, g)
+    right-handed, shapes (n, 3).
+    """
     side = np.abs(g[:, 0]) > _SIDE
     if not side.any():
         return facet_frame(g)
@@ -210,10 +215,12 @@ def _frame(g: NDArray) -> tuple[NDArray, NDArray]:
 
 
 def _tangent_frame(g: NDArray, a: NDArray) -> tuple[NDArray, NDArray]:
-    """(t, b) with t the unit tangents ``a`` projected onto the facets of normals ``g``,
-    falling back to :func:`_frame` where that projection vanishes (|a . g| > _SIDE);
-    (t, b, g) right-handed, shapes (n, 3). For a = world x this is :func:`_frame` exactly
-    (the same operations in the same order)."""
+    """Return (t, b) with t the unit tangents ``a`` projected onto the facets of normals ``g``.
+
+    Falls back to :func:`_frame` where that projection vanishes (|a . g| > _SIDE); (t, b, g)
+    right-handed, shapes (n, 3). For a = world x this is :func:`_frame` exactly (the same
+    operations in the same order).
+    """
     ag = np.sum(a * g, 1)
     side = np.abs(ag) > _SIDE
     t = a - ag[:, None] * g
@@ -243,8 +250,10 @@ def _start_kernel(dirs, per, seed, start, zs, lx, ly, o, d, s):
 
 @njit(inline="always")
 def _record(r, code, t, gx, gy, gz, eps, lx, ly, o, d, w, nb, lost, max_bounces, status, g):
-    """Book-keep the traversal outcome ``code`` of ray r (as the path tracers do); returns
-    True for a hit, whose origin then moves to the hit point + eps g, wrapped."""
+    """Book-keep the traversal outcome ``code`` of ray r (as the path tracers do).
+
+    Returns True for a hit, whose origin then moves to the hit point + eps g, wrapped.
+    """
     if code == _ESCAPED:
         status[r] = _ESCAPED
         return False
