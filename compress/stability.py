@@ -1,4 +1,4 @@
-"""Where each method breaks: a stability atlas (issue 7).
+"""Where each method breaks: a stability atlas.
 
 Five measurements, one function each, every one returning an :class:`Atlas` (a table with
 ``to_markdown()`` and ``plot(path)``); :func:`write_all` writes them all. Every fact in the
