@@ -49,6 +49,10 @@ class Basis:
     kind: str = ""
     #: Largest order accepted by the constructor (documented per class).
     max_order: int = 0
+    #: True when every function vanishes on the horizon (z = 0), as Westin's odd hemisphere
+    #: harmonics do; then f = q / (cos theta_i cos theta_o) of a ``"f_cos"`` matrix has a
+    #: finite limit at grazing angles and is the natural representation.
+    vanishes_on_horizon: bool = False
 
     def __init__(self, order: object, name: str = "order") -> None:
         self._order = nonneg_int(order, name, maximum=self.max_order,

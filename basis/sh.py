@@ -200,6 +200,11 @@ class HemiHarmonics(_Harmonics):
         super().__init__(lmax)
 
     @property
+    def vanishes_on_horizon(self) -> bool:
+        """True for the odd parity: sqrt(2) Y_lm with l + |m| odd is odd in z, so 0 at z = 0."""
+        return self._parity == "odd"
+
+    @property
     def kind(self) -> str:
         """``"harmonics"`` (odd parity) or ``"harmonics-even"``; see :func:`basis.make_basis`."""
         return "harmonics" if self._parity == "odd" else "harmonics-even"

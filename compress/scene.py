@@ -43,7 +43,7 @@ __all__ = ["Environment", "ScenePlan", "for_scene", "select_order"]
 
 
 def select_order(brdf: Any, kind: str, tol: float, *, metric: str = "l2",
-                 max_order: int = 20, quantity: str = "f_cos",
+                 max_order: int = 20, quantity: str = "auto",
                  nodes: tuple[int, int] = NODES, max_theta: float = MAX_THETA,
                  **project_kwargs: Any) -> int:
     """The smallest order of basis ``kind`` whose ``metric`` error on ``brdf`` is <= ``tol``.
@@ -281,7 +281,7 @@ def for_scene(cm: CoefficientMatrix, *, lights: Environment | ArrayLike,
     >>> import numpy as np, basis
     >>> from project import project
     >>> from project.models import Phong
-    >>> cm = project(Phong(0.3, 0.5, 8.0), basis.HemiZernike(8))
+    >>> cm = project(Phong(0.3, 0.5, 8.0), basis.HemiZernike(8), quantity="f_cos")
     >>> sky = Environment.sh(np.array([1.0]))
     >>> views = basis.from_angles(np.radians([0.0, 30.0, 60.0]), 0.0)
     >>> plan = for_scene(cm, lights=sky, views=views, tol=1e-3, time_eval=False)

@@ -294,8 +294,8 @@ def eval_ns(cm: CoefficientMatrix, *, pairs: int = TIMING_PAIRS, seed: int = 1) 
 
 
 # -- the study ----------------------------------------------------------------------------
-COLUMNS = ("kind", "order", "coefficients", "bytes", "projection_s", "eval_ns", *METRICS,
-           "truncation_error", "warnings")
+COLUMNS = ("kind", "order", "quantity", "coefficients", "bytes", "projection_s", "eval_ns",
+           *METRICS, "truncation_error", "warnings")
 
 
 @dataclass
@@ -329,18 +329,19 @@ class Study:
         if name not in COLUMNS:
             raise ValueError(f"name must be one of {', '.join(COLUMNS)}, got {name!r}")
         vals = [r[name] for r in self.rows]
-        if name == "kind":
+        if name in ("kind", "quantity"):
             return np.array(vals, dtype=object)
         return np.array([np.nan if v is None else v for v in vals], dtype=np.float64)
 
     def to_markdown(self) -> str:
         """The table as GitHub markdown, with the sampling and BRDF as a caption."""
-        head = ["kind", "order", "coefficients", "bytes", "projection s", "eval ns",
+        head = ["kind", "order", "quantity", "coefficients", "bytes", "projection s", "eval ns",
                 *METRICS]
         lines = [f"Study of {self.source} (quantity {self.quantity!r}); {self.sampling}.", "",
                  "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
         for r in self.rows:
-            cells = [r["kind"], str(r["order"]), str(r["coefficients"]), str(r["bytes"]),
+            cells = [r["kind"], str(r["order"]), r["quantity"], str(r["coefficients"]),
+                     str(r["bytes"]),
                      f"{r['projection_s']:.3g}", f"{r['eval_ns']:.3g}"]
             cells += ["n/a" if r[m] is None else f"{r[m]:.3g}" for m in METRICS]
             lines.append("| " + " | ".join(cells) + " |")
@@ -418,7 +419,7 @@ def pareto_front(cost: ArrayLike, error: ArrayLike) -> NDArray[np.bool_]:
 
 
 def study(brdf: Any, kind: str | Sequence[str], orders: Sequence[int], *,
-          quantity: str = "f_cos", smooth: str | None = None, nodes: tuple[int, int] = NODES,
+          quantity: str = "auto", smooth: str | None = None, nodes: tuple[int, int] = NODES,
           max_theta: float = MAX_THETA, seed: int = 0, time_eval: bool = True,
           **project_kwargs: Any) -> Study:
     """Project ``brdf`` at each order of each kind and measure every metric.
@@ -431,7 +432,9 @@ def study(brdf: Any, kind: str | Sequence[str], orders: Sequence[int], *,
         (HemiHarmonics, odd: Westin's choice), ``"harmonics-even"``, ``"sh"``
         (SphericalHarmonics). Several kinds put several curves on one chart.
     orders : sequence of int
-    quantity : {"f_cos", "f"}
+    quantity : {"auto", "f_cos", "f"}
+        As in :func:`project.project`; ``"auto"`` (:func:`project.default_quantity`) may pick
+        a different quantity per kind, which the ``quantity`` column records.
     smooth : {"half-gaussian", "lanczos", "hann"}, optional
         Apply :func:`compress.smooth` with its defaults to every projection (the row's kind
         reads e.g. ``"zernike/hann"``).
@@ -467,7 +470,8 @@ def study(brdf: Any, kind: str | Sequence[str], orders: Sequence[int], *,
             if smooth is not None:
                 cm = _smooth(cm, smooth)
             row: dict[str, Any] = dict(kind=k if smooth is None else f"{k}/{smooth}",
-                                       order=order, coefficients=unique_coefficients(cm))
+                                       order=order, quantity=cm.quantity,
+                                       coefficients=unique_coefficients(cm))
             row["bytes"] = 8 * row["coefficients"]
             row["projection_s"] = float(cm.info.get("seconds", np.nan))
             row["eval_ns"] = eval_ns(cm) if time_eval else float("nan")

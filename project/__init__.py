@@ -13,11 +13,12 @@ from . import measured, models
 from .brdf import BRDF, MirrorDelta
 from .lstsq import bin_samples, fit, read_table, tessellate_hemisphere
 from .matrix_brdf import MatrixBRDF
-from .quadrature import project, radial_table, tail_fraction, truncation_error
+from .quadrature import default_quantity, project, radial_table, tail_fraction, truncation_error
 
 __all__ = [
     "BRDF",
     "MatrixBRDF",
+    "default_quantity",
     "MirrorDelta",
     "bin_samples",
     "fit",

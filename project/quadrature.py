@@ -38,7 +38,7 @@ from scipy.special import roots_legendre
 from basis import Basis, CoefficientMatrix
 from basis.validation import check_bytes, choice, nonneg_int
 
-__all__ = ["project", "radial_table"]
+__all__ = ["default_quantity", "project", "radial_table"]
 
 #: Pairs evaluated per call of ``brdf.eval``: bounds the memory of one chunk (~100 MB for RGB).
 CHUNK = 1 << 21
@@ -52,7 +52,7 @@ def project(
     brdf: Any,
     basis: Basis,
     *,
-    quantity: str = "f_cos",
+    quantity: str = "auto",
     method: str = "quadrature",
     tol: float = 1e-6,
     isotropic: bool | None = None,
@@ -72,9 +72,12 @@ def project(
     basis : basis.Basis
         ``HemiZernike``, ``HemiHarmonics`` or ``SphericalHarmonics`` (for the full sphere the
         BRDF is zero below the horizon, so only the upper hemisphere is integrated).
-    quantity : {"f_cos", "f"}
-        What the matrix represents: f cos(theta_i) cos(theta_o) (default, Westin's choice:
-        bounded at grazing, mirror terms have finite coefficients) or f.
+    quantity : {"auto", "f_cos", "f"}
+        What the matrix represents: f cos(theta_i) cos(theta_o) (Westin's choice: bounded at
+        grazing, mirror terms have finite coefficients) or f. ``"auto"`` (default) picks what
+        stays accurate on all of H x H when the matrix is evaluated as a BRDF, see
+        :func:`default_quantity`: ``"f_cos"`` for bases that vanish on the horizon (the odd
+        hemisphere harmonics) and for BRDFs with mirror terms, ``"f"`` otherwise.
     method : {"quadrature", "montecarlo", "lstsq"}
         ``"quadrature"``: the product rule above, refined by doubling until converged.
         ``"montecarlo"``: scrambled Sobol points in (z_i, phi_i, z_o, phi_o), for BRDFs that
@@ -144,10 +147,12 @@ def project(
     if not isinstance(basis, Basis):
         raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
                         f"{type(basis).__name__}")
-    quantity = choice(quantity, "quantity", ("f_cos", "f"))
+    quantity = choice(quantity, "quantity", ("auto", "f_cos", "f"))
     method = choice(method, "method", ("quadrature", "montecarlo", "lstsq"))
     iso = bool(brdf.isotropic) if isotropic is None else bool(isotropic)
     deltas = tuple(getattr(brdf, "delta", ()) or ())
+    if quantity == "auto":
+        quantity = default_quantity(basis, brdf)
     if deltas and quantity == "f":
         raise ValueError("quantity must be 'f_cos' for a BRDF with mirror (delta) terms: with "
                          "quantity='f' their coefficients int b_j b_k / cos(theta) diverge")
@@ -186,6 +191,47 @@ def project(
                       "the order, filter (compress.smooth) or change the basis or quantity",
                       RuntimeWarning, stacklevel=2)
     return cm
+
+
+def default_quantity(basis: Basis, brdf: Any = None) -> str:
+    """Return the quantity to represent a BRDF by in ``basis`` when the user does not say.
+
+    Parameters
+    ----------
+    basis : basis.Basis
+    brdf : BRDF, optional
+        Only its ``delta`` (mirror) terms matter.
+
+    Returns
+    -------
+    {"f_cos", "f"}
+        ``"f_cos"`` when the basis vanishes on the horizon (``basis.vanishes_on_horizon``:
+        the odd hemisphere harmonics, whose q / (cos theta_i cos theta_o) has a finite limit
+        there) or when the BRDF has mirror terms (they have no coefficients as ``"f"``);
+        ``"f"`` otherwise.
+
+    Notes
+    -----
+    A ``"f_cos"`` expansion in a basis that does not vanish on the horizon does not vanish
+    there either, while the true q does; evaluating f = q / (cos theta_i cos theta_o) then
+    amplifies the truncation error without bound near grazing angles. Measured on Phong
+    (kd 0.3, ks 0.4, n 20) in HemiZernike(12), relative RMS error of f over 200,000 pairs
+    uniform in solid angle on H x H: 84 as ``"f_cos"`` (max |f_hat| 5,000 times max f), 0.061
+    as ``"f"`` (the L2 projection of f itself, whose error over H x H is exactly the Parseval
+    truncation error). Raising ``min_cos`` of :meth:`basis.CoefficientMatrix.eval` does not
+    rescue ``"f_cos"`` (0.2 to 1.0 for min_cos between 0.02 and 0.3). BRDFs whose f is not
+    square integrable (Ward's original normalisation, f ~ 1 / sqrt(cos theta_i cos theta_o))
+    converge slowly as ``"f"``; project them as ``"f_cos"`` into the odd harmonics.
+
+    Examples
+    --------
+    >>> from basis import HemiHarmonics, HemiZernike
+    >>> default_quantity(HemiZernike(8)), default_quantity(HemiHarmonics(8))
+    ('f', 'f_cos')
+    """
+    if getattr(basis, "vanishes_on_horizon", False) or getattr(brdf, "delta", ()):
+        return "f_cos"
+    return "f"
 
 
 def _check_brdf(brdf: Any) -> None:

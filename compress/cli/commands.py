@@ -454,15 +454,17 @@ def _stability(args: argparse.Namespace) -> int:
 
 # -- the parser ------------------------------------------------------------------------------
 def _add_basis(p: argparse.ArgumentParser, *, kinds: tuple[str, ...] = KINDS,
-               quantity: str = "f_cos", order: int | None = 8) -> None:
+               quantity: str = "auto", quantities: tuple[str, ...] = ("auto", "f_cos", "f"),
+               order: int | None = 8) -> None:
     p.add_argument("--basis", choices=kinds, default="zernike",
                    help="hemisphere Zernike functions, odd or even hemisphere harmonics, or "
                         "full-sphere harmonics (default %(default)s)")
     p.add_argument("--order", type=_order, default=order, metavar="N",
                    help="basis order, inclusive (default %(default)s)")
-    p.add_argument("--quantity", choices=("f_cos", "f"), default=quantity,
-                   help="what the matrix represents: f cos(theta_i) cos(theta_o) or f "
-                        "(default %(default)s)")
+    p.add_argument("--quantity", choices=quantities, default=quantity,
+                   help="what the matrix represents: f cos(theta_i) cos(theta_o) or f; auto: "
+                        "f_cos for the odd harmonics (they vanish on the horizon) and for "
+                        "mirror terms, f otherwise (default %(default)s)")
 
 
 def _add_source(p: argparse.ArgumentParser) -> None:
@@ -571,7 +573,8 @@ def _parser() -> argparse.ArgumentParser:
                "  scatmodes fit paint.csv --basis harmonics --order 6 --no-isotropic "
                "--regularization 1e-6 -o paint.h5")
     f.add_argument("table", metavar="TABLE", help="text file of measurements")
-    _add_basis(f, kinds=("zernike", "harmonics", "harmonics-even"), quantity="f")
+    _add_basis(f, kinds=("zernike", "harmonics", "harmonics-even"), quantity="f",
+               quantities=("f_cos", "f"))
     f.add_argument("--isotropic", action=argparse.BooleanOptionalAction, default=True,
                    help="fit only the isotropic blocks (default: yes)")
     f.add_argument("--regularization", type=_nonneg, default=0.0, metavar="LAMBDA",
@@ -603,7 +606,7 @@ def _parser() -> argparse.ArgumentParser:
                    help="mirror facets: refractive index for Fresnel (default: F = 1)")
     s.add_argument("--albedo", type=_nonneg, default=None,
                    help="diffuse facets: albedo (default 1)")
-    _add_basis(s, quantity="f_cos")
+    _add_basis(s, quantity="f_cos", quantities=("f_cos",))  # Westin's estimator gives f cos cos
     s.add_argument("--rays", type=_count, default=1_000_000,
                    help="incident rays, in total when resuming (default %(default)s)")
     s.add_argument("--seed", type=int, default=0, help="seed of the rays (default %(default)s)")
@@ -629,8 +632,8 @@ def _parser() -> argparse.ArgumentParser:
                          "(default %(default)s)")
     st.add_argument("--orders", default="2,4,8",
                     help="comma-separated orders (default %(default)s)")
-    st.add_argument("--quantity", choices=("f_cos", "f"), default="f_cos",
-                    help="represented quantity (default %(default)s)")
+    st.add_argument("--quantity", choices=("auto", "f_cos", "f"), default="auto",
+                    help="represented quantity (default %(default)s: as for project)")
     st.add_argument("--smooth", choices=("half-gaussian", "lanczos", "hann"), default=None,
                     help="filter every projection (default: none)")
     st.add_argument("--metric", default="l2", help="error plotted in the chart (default "

@@ -300,7 +300,8 @@ def scene_rows(args: argparse.Namespace) -> None:
     except ImportError:
         print("# velvet not available in this version; brushed metal only")
     else:
-        # black velvet (tests/project/microgeometry/test_velvet.py): 5 um fibres, 300 um pile, 1000 fibres
+        # black velvet (tests/project/microgeometry/test_velvet.py): 5 um fibres, 300 um
+        # pile, 1000 fibres
         specimens["velvet"] = velvet(5.0, 300.0, 6.25e-4, tilt=0.3, absorption=0.03,
                                      count=1000, seed=1)
     basis = HemiZernike(args.order)

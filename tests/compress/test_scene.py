@@ -17,7 +17,7 @@ VIEWS = basis.from_angles(np.radians(np.linspace(0.0, 75.0, 16)),
 
 @pytest.fixture(scope="module")
 def glossy():
-    return project(BlinnPhong(0.3, 0.5, 20.0), basis.HemiZernike(10))
+    return project(BlinnPhong(0.3, 0.5, 20.0), basis.HemiZernike(10), quantity="f_cos")
 
 
 def test_lambert_under_uniform_sky_closed_form():
@@ -40,6 +40,16 @@ def test_uniform_sky_has_zernike_bandwidth_zero(glossy):
     assert plan.order_errors[0] > 0.1 and plan.order_errors[-1] == 0.0
     assert plan.error <= 1e-3 and plan.order < glossy.order
     assert plan.bytes < plan.bytes_full and plan.bytes_saved == plan.bytes_full - plan.bytes
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of BlinnPhong")  # order 6 misses 16 %
+def test_uniform_sky_has_zernike_bandwidth_two_for_f():
+    # as quantity "f" the light enters with its cos: z = 1 - rho^2 holds R_2^0, so degree 2
+    cm = project(BlinnPhong(0.3, 0.5, 20.0), basis.HemiZernike(6), quantity="f")
+    plan = for_scene(cm, lights=Environment.sh(np.array([1.0])), views=VIEWS, tol=1e-3,
+                     time_eval=False)
+    assert plan.light_bandwidth == 2
+    assert max(plan.incident_errors[2:]) < 1e-13 < plan.incident_errors[1]
 
 
 @pytest.mark.parametrize("lmax", [2, 5])

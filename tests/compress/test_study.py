@@ -16,7 +16,9 @@ NODES = (24, 48)  # small test set: every test here runs in well under a second
 
 @pytest.fixture(scope="module")
 def phong_study():
-    return study(Phong(0.2, 0.4, 6.0), ["zernike", "harmonics"], [2, 4, 8], nodes=NODES)
+    # f_cos in both kinds: the l2 metric (of q) is then the Parseval truncation error
+    return study(Phong(0.2, 0.4, 6.0), ["zernike", "harmonics"], [2, 4, 8], nodes=NODES,
+                 quantity="f_cos")
 
 
 def test_rows_and_columns(phong_study):
@@ -73,8 +75,8 @@ def test_anisotropic_uses_sobol():
 
 def test_markdown_and_plot(phong_study, tmp_path):
     md = phong_study.to_markdown()
-    assert md.splitlines()[2].startswith("| kind | order | coefficients | bytes |")
-    assert "| zernike | 8 | 55 | 440 |" in md
+    assert md.splitlines()[2].startswith("| kind | order | quantity | coefficients | bytes |")
+    assert "| zernike | 8 | f_cos | 55 | 440 |" in md
     png = phong_study.plot(tmp_path / "s.png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["s.png"]
@@ -117,9 +119,12 @@ def test_select_order():
     want = int(np.flatnonzero(l2 <= tol)[0])  # the study, order by order, independently
     assert select_order(brdf, "zernike", tol, max_order=8, nodes=NODES) == want
     assert select_order(Lambert(0.3), "harmonics", 1e-12, max_order=3, nodes=NODES) == 1
-    assert select_order(Lambert(0.3), "zernike", 1e-12, max_order=3, nodes=NODES) == 2
+    # Lambert's f is the constant K_0^0 (order 0); its f cos cos needs z_i z_o (order 2)
+    assert select_order(Lambert(0.3), "zernike", 1e-12, max_order=3, nodes=NODES) == 0
+    assert select_order(Lambert(0.3), "zernike", 1e-12, max_order=3, nodes=NODES,
+                        quantity="f_cos") == 2
     with pytest.raises(ValueError, match="no order <= 2 of kind 'zernike' meets l2"), \
-            pytest.warns(RuntimeWarning, match="misses 58.1 %"):
+            pytest.warns(RuntimeWarning, match="misses 43.1 %"):
         select_order(brdf, "zernike", 1e-6, max_order=2, nodes=NODES)
     with pytest.raises(ValueError, match="metric must be one of"):
         select_order(brdf, "zernike", 0.1, metric="psnr")

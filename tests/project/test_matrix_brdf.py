@@ -138,7 +138,7 @@ def test_full_sphere_basis_is_accepted():
 def test_grazing_amplification_of_f_cos_warns():
     # HemiZernike functions do not vanish on the horizon: the truncated q / (cos cos) of a
     # glossy lobe reaches albedos far above 1 at grazing incidence
-    cm = _projected(Phong(0.3, 0.5, 2), HemiZernike(4))
+    cm = _projected(Phong(0.3, 0.5, 2), HemiZernike(4), quantity="f_cos")
     with pytest.warns(RuntimeWarning, match=r"reflects more than it receives: directional "
                                             r"albedo up to \d+\.?\d* at theta_i = 90\.0 deg"):
         MatrixBRDF(cm, negative="clamp")

@@ -180,7 +180,7 @@ def test_study_writes_markdown_and_chart(tmp_path, capsys):
                            "--orders", "2,4", "--out", str(tmp_path / "st"))
     assert status == 0, err
     assert out.startswith("Study of Phong(kd=0.3, ks=0.4, n=20)")
-    assert "| zernike | 4 | 14 |" in out and "| harmonics | 2 | 2 |" in out
+    assert "| zernike | 4 | f | 14 |" in out and "| harmonics | 2 | f_cos | 2 |" in out
     assert (tmp_path / "st" / "study.md").read_text().startswith("Study of Phong")
     assert (tmp_path / "st" / "study.png").read_bytes()[:4] == b"\x89PNG"
 
