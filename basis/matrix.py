@@ -19,7 +19,8 @@ from .zernike import HemiZernike
 
 __all__ = ["CoefficientMatrix", "QUANTITIES"]
 
-#: What a matrix represents: the BRDF itself, or f cos(theta_i) cos(theta_o) (Westin's choice).
+#: What a matrix represents: the BRDF itself, or f cos(theta_i) cos(theta_o) (the choice of
+#: Westin, Arvo & Torrance 1992, sec. 2.5).
 QUANTITIES = ("f", "f_cos")
 
 _R2 = float(np.sqrt(2.0))
@@ -59,7 +60,8 @@ class CoefficientMatrix:
 
     Examples
     --------
-    Lambert with albedo a in Westin's form is one coefficient: f cos cos =
+    Lambert with albedo a in Westin's form (Westin, Arvo & Torrance 1992, sec. 2.5) is one
+    coefficient: f cos cos =
     (a/pi) z_i z_o = (2a/3) b_10(w_i) b_10(w_o) for the hemisphere harmonic
     b_10 = sqrt(2) Y_10 = sqrt(3/(2 pi)) z.
 
@@ -124,7 +126,7 @@ class CoefficientMatrix:
         *,
         info: dict[str, Any] | None = None,
     ) -> CoefficientMatrix:
-        """An isotropic matrix from its blocks, one per azimuthal order m = 0..basis.order.
+        """Build an isotropic matrix from its blocks, one per azimuthal order m = 0..basis.order.
 
         ``blocks[m]`` has shape (k_m, k_m) or (channels, k_m, k_m), k_m the number of basis
         functions with azimuthal order +m; rows and columns ordered by degree. It is
@@ -293,7 +295,7 @@ class CoefficientMatrix:
         return self.evaluator(min_cos=min_cos)(wi, wo)
 
     def evaluator(self, *, min_cos: float = 1e-3) -> Evaluator:
-        """The compiled evaluator of this matrix (built once per ``min_cos``, then kept).
+        """Return the compiled evaluator of this matrix (built once per ``min_cos``, then kept).
 
         Parameters
         ----------
@@ -347,7 +349,7 @@ class CoefficientMatrix:
 
     # -- derived matrices ---------------------------------------------------------------
     def truncate(self, order: int) -> CoefficientMatrix:
-        """The same BRDF in the basis truncated to ``order`` (a prefix of the functions)."""
+        """Return the same BRDF in the basis truncated to ``order`` (a prefix of the functions)."""
         nb = self.basis.truncate(order)
         if self._blocks is not None:
             cos_idx = nb.azimuthal_blocks().cos
@@ -361,8 +363,10 @@ class CoefficientMatrix:
                                  isotropic=False, info=self.info)
 
     def to_isotropic(self) -> CoefficientMatrix:
-        """Orthogonal projection onto isotropic BRDFs (the average over rotations of the
-        surface): cos-cos and sin-sin blocks averaged, every other coupling dropped."""
+        """Project orthogonally onto isotropic BRDFs (the average over rotations of the surface).
+
+        The cos-cos and sin-sin blocks are averaged, every other coupling is dropped.
+        """
         if self._blocks is not None:
             return self
         blocks = _isotropic_blocks(self.basis, self._dense)
@@ -371,8 +375,10 @@ class CoefficientMatrix:
             info=self.info)
 
     def rotated(self, angle: float) -> CoefficientMatrix:
-        """The same BRDF turned by ``angle`` about the normal: f'(w_i, w_o) = f(R^-1 w_i,
-        R^-1 w_o), with R the rotation by ``angle`` (radians, counter-clockwise seen from +z).
+        """Return the same BRDF turned by ``angle`` about the normal.
+
+        f'(w_i, w_o) = f(R^-1 w_i, R^-1 w_o), with R the rotation by ``angle`` (radians,
+        counter-clockwise seen from +z).
 
         Parameters
         ----------
@@ -420,6 +426,9 @@ class CoefficientMatrix:
 
     def to_modes(self, isotropic: bool | None = None) -> NDArray[np.float64]:
         """Coefficients in the Helmholtz surface scattering modes (HemiZernike basis only).
+
+        The modes are the symmetrised products of hemisphere Zernike functions of
+        Koenderink, van Doorn & Stavridi (ECCV 1996); see :class:`basis.HelmholtzModes`.
 
         Parameters
         ----------

@@ -11,8 +11,9 @@ With the BRDF held as q(w_i, w_o) = b(w_i)^T M b(w_o), the radiance leaving towa
     L_o(w_o) = int_H f(w_i, w_o) L_i(w_i) cos(theta_i) dw_i = b(w_o)^T M l / c(w_o),
 
 where the light enters only through its coefficients in the same basis,
-l_j = int_H b_j(w) L_i(w) dw and c(w_o) = cos(theta_o) for quantity "f_cos" (Westin's
-form), or l_j = int_H b_j L_i cos(theta) dw and c = 1 for quantity "f".
+l_j = int_H b_j(w) L_i(w) dw and c(w_o) = cos(theta_o) for quantity "f_cos" (the form of
+Westin, Arvo & Torrance 1992, sec. 2.5), or l_j = int_H b_j L_i cos(theta) dw and c = 1 for
+quantity "f".
 
 The band-limit fact: if the light has no component above degree L in the basis (l_j = 0 for
 degree(b_j) > L), the columns of M above L never meet it, so truncating the *incident* side
@@ -46,7 +47,7 @@ def select_order(brdf: Any, kind: str, tol: float, *, metric: str = "l2",
                  max_order: int = 20, quantity: str = "auto",
                  nodes: tuple[int, int] = NODES, max_theta: float = MAX_THETA,
                  **project_kwargs: Any) -> int:
-    """The smallest order of basis ``kind`` whose ``metric`` error on ``brdf`` is <= ``tol``.
+    """Find the smallest order of basis ``kind`` whose ``metric`` error on ``brdf`` is <= ``tol``.
 
     Parameters
     ----------
@@ -122,9 +123,12 @@ class Environment:
 
     @classmethod
     def directional(cls, dirs: ArrayLike, weights: ArrayLike | None = None) -> Environment:
-        """Distant lights from ``dirs`` ((n, 3) unit vectors towards the lights) with
-        irradiance ``weights`` ((n,) or (n, channels), measured normal to each beam;
-        default 1): L_o(w_o) = sum_k weights_k f(d_k, w_o) cos(theta_k)."""
+        """Build distant lights from their directions and irradiances.
+
+        ``dirs`` are (n, 3) unit vectors towards the lights, ``weights`` their irradiance
+        ((n,) or (n, channels), measured normal to each beam; default 1):
+        L_o(w_o) = sum_k weights_k f(d_k, w_o) cos(theta_k).
+        """
         d = as_directions(dirs, "dirs").reshape(-1, 3)
         w = np.ones(d.shape[0]) if weights is None else np.asarray(weights, dtype=np.float64)
         if w.shape[:1] != (d.shape[0],) or w.ndim > 2:
@@ -136,9 +140,12 @@ class Environment:
 
     @classmethod
     def sh(cls, coeffs: ArrayLike) -> Environment:
-        """An environment L_i(w) = sum_j c_j Y_j(w) in real spherical harmonics
-        (``basis.SphericalHarmonics`` order, flat index l*l + l + m); ``coeffs`` has shape
-        ((lmax+1)^2,) or ((lmax+1)^2, channels)."""
+        """Build an environment from its real spherical-harmonic coefficients.
+
+        L_i(w) = sum_j c_j Y_j(w) in real spherical harmonics (``basis.SphericalHarmonics``
+        order, flat index l*l + l + m); ``coeffs`` has shape ((lmax+1)^2,) or
+        ((lmax+1)^2, channels).
+        """
         c = np.asarray(coeffs, dtype=np.float64)
         n = c.shape[0] if c.ndim else 0
         lmax = int(round(np.sqrt(n))) - 1
@@ -149,10 +156,13 @@ class Environment:
 
     @classmethod
     def latlong(cls, image: ArrayLike) -> Environment:
-        """An equirectangular radiance image (H, W) or (H, W, channels): row i spans
-        theta in [i, i+1] pi / H from the zenith, column j spans phi in [j, j+1] 2 pi / W
-        from +x. Each upper-hemisphere pixel becomes a light at its centre with the pixel's
-        exact solid angle (midpoint rule)."""
+        """Build an environment from an equirectangular radiance image.
+
+        The image is (H, W) or (H, W, channels): row i spans theta in [i, i+1] pi / H from
+        the zenith, column j spans phi in [j, j+1] 2 pi / W from +x. Each upper-hemisphere
+        pixel becomes a light at its centre with the pixel's exact solid angle (midpoint
+        rule).
+        """
         img = np.asarray(image, dtype=np.float64)
         if img.ndim not in (2, 3) or img.shape[0] < 2 or img.shape[1] < 1:
             raise ValueError(f"image must have shape (H, W) or (H, W, channels) with H >= 2, "
@@ -249,7 +259,9 @@ def for_scene(cm: CoefficientMatrix, *, lights: Environment | ArrayLike,
               views: ArrayLike, tol: float, light_weights: ArrayLike | None = None,
               view_weights: ArrayLike | None = None, min_cos: float = 1e-3,
               time_eval: bool = True) -> ScenePlan:
-    """Model no more than a scene needs: the smallest truncation (and rank) of ``cm`` whose
+    """Find the smallest truncation (and rank) of ``cm`` that a scene needs.
+
+    Model no more than a scene needs: the smallest truncation (and rank) of ``cm`` whose
     rendered radiance stays within ``tol`` of the full representation's.
 
     Parameters

@@ -14,16 +14,19 @@ Metrics (per channel, the table shows the largest over channels):
 
 =================  ==========================================================================
 ``l2``             cosine-weighted relative L2 error over all of H x H: ||q_hat - q|| / ||q||
-                   with q = f cos(theta_i) cos(theta_o) (Ngan et al. 2005, relative; for
-                   quantity "f_cos" it equals the Parseval truncation error of the projection,
-                   up to the quadrature error of the test set)
+                   with q = f cos(theta_i) cos(theta_o) (the squared error that Lafortune
+                   et al. 1997, sec. 6, minimise, made relative; for quantity "f_cos" it
+                   equals the Parseval truncation error of the projection, up to the
+                   quadrature error of the test set)
 ``max_abs``        max |f_hat - f| (1/sr)                                               [D]
-``rel_rms``        ||f_hat - f|| / ||f|| with weight cos^2(theta_i)                     [D]
+``rel_rms``        ||f_hat - f|| / ||f|| with weight cos^2(theta_i), the weight of the RMSE
+                   of Holzschuch & Pacanowski 2015 (sec. 6.3, eq. 31)                   [D]
 ``log_rms``        RMS of log(1 + f cos theta_i) - log(1 + max(f_hat, 0) cos theta_i)
                    (negative values clamped, as a renderer would)                       [D]
 ``smape``          mean of 100 |f_hat - f| / (|f_hat| + |f|) in percent (absolute values in
                    the denominator so negative f_hat stay in [0, 100]; 0 where both
-                   vanish)                                                              [D]
+                   vanish). Holzschuch & Pacanowski 2015 (sec. 6.1, eq. 30) use the same
+                   ratio, in [0, 1], on image pixels                                    [D]
 ``negative``       solid-angle fraction of H x H where f_hat < 0
 ``albedo``         max over theta_i in D of |a_hat(theta_i) - a(theta_i)|, both by the same
                    rule (isotropic test sets only; None otherwise)
@@ -33,12 +36,26 @@ Metrics (per channel, the table shows the largest over channels):
                    of H x H, grazing pairs included
 =================  ==========================================================================
 
-D is the domain theta_i, theta_o < ``max_theta`` (default 1.4 rad = 80.2 deg) on which Ngan
-et al. (2005) compare fitted models, avoiding the grazing band where f = q / (cos cos) is
-ill conditioned; the ``_all`` columns show what that band costs. Pointwise metrics use f_hat
-as ``CoefficientMatrix.eval`` returns it by default (``min_cos = 1e-3``); ``l2``,
-``negative`` and the albedo use the expansion itself. Solid-angle weighted means are used
-throughout.
+D is the domain theta_i, theta_o < ``max_theta`` (default 1.4 rad = 80.2 deg) on which
+Holzschuch & Pacanowski (2015, sec. 5.8 and sec. 6.3) fit and compare models to measured
+data, leaving out grazing angles as Ngan et al. (2005) do; it avoids the band where measured
+data are unreliable and f = q / (cos cos) is ill conditioned. The ``_all`` columns show what
+that band costs. Pointwise metrics use f_hat as ``CoefficientMatrix.eval`` returns it by
+default (``min_cos = 1e-3``); ``l2``, ``negative`` and the albedo use the expansion itself.
+Solid-angle weighted means are used throughout.
+
+References
+----------
+- Holzschuch & Pacanowski 2015: N. Holzschuch and R. Pacanowski, "A physically accurate
+  reflectance model combining reflection and diffraction", Inria research report RR-8807,
+  2015 (journal version: "A two-scale microfacet reflectance model combining reflection and
+  diffraction", ACM Transactions on Graphics 36(4), SIGGRAPH 2017).
+- Lafortune et al. 1997: E. P. F. Lafortune, S.-C. Foo, K. E. Torrance and D. P. Greenberg,
+  "Non-linear approximation of reflectance functions", SIGGRAPH 97, pp. 117-126.
+- Ngan et al. 2005: A. Ngan, F. Durand and W. Matusik, "Experimental analysis of BRDF
+  models", Eurographics Symposium on Rendering 2005.
+- Westin et al. 1992: S. H. Westin, J. R. Arvo and K. E. Torrance, "Predicting reflectance
+  functions from complex surfaces", SIGGRAPH 92, pp. 255-264.
 """
 
 from __future__ import annotations
@@ -64,8 +81,10 @@ from .truncate import unique_coefficients
 __all__ = ["KINDS", "METRICS", "Study", "Samples", "errors", "make_basis", "pareto_front",
            "study", "reference_samples"]
 
-#: Basis kinds by name: the hemisphere Zernike functions, Westin's odd hemisphere harmonics,
-#: the even completion, and the full-sphere harmonics (BRDF zero below the horizon).
+# KINDS (from basis) names the basis kinds: the hemisphere Zernike functions, the odd
+# hemisphere harmonics (Westin et al. 1992, sec. 2.5), the even completion, and the
+# full-sphere harmonics (BRDF zero below the horizon).
+
 #: Error columns of a study (see the module notes).
 METRICS = ("l2", "max_abs", "rel_rms", "log_rms", "smape", "negative", "albedo", "reciprocity",
            "max_abs_all", "rel_rms_all", "log_rms_all", "smape_all", "albedo_all",
@@ -75,7 +94,8 @@ METRICS = ("l2", "max_abs", "rel_rms", "log_rms", "smape", "negative", "albedo",
 DEFAULT_MIN_COS = 1e-3
 #: Default test set: Gauss nodes per cosine, azimuth differences.
 NODES = (40, 80)
-#: Polar angle limit of the domain D of the pointwise metrics (seed 004: theta < 1.4 rad).
+#: Polar angle limit of the domain D of the pointwise metrics (theta < 1.4 rad, as in
+#: Holzschuch & Pacanowski 2015, sec. 6.3).
 MAX_THETA = 1.4
 #: Evaluation is timed on this many pairs (best of three).
 TIMING_PAIRS = 1 << 18
@@ -114,8 +134,10 @@ class Samples:
 
 
 def isotropic_pairs(nz: int, nphi: int) -> tuple[NDArray, NDArray, NDArray]:
-    """The isotropic product rule on H x H: Gauss-Legendre in each cosine x uniform
-    dphi = phi_i - phi_o, with phi_i = 0 (an isotropic integrand does not depend on it).
+    """Return the isotropic product rule on H x H.
+
+    Gauss-Legendre in each cosine x uniform dphi = phi_i - phi_o, with phi_i = 0 (an
+    isotropic integrand does not depend on it).
 
     Returns
     -------
@@ -139,7 +161,7 @@ def isotropic_pairs(nz: int, nphi: int) -> tuple[NDArray, NDArray, NDArray]:
 
 def reference_samples(brdf: Any, *, nodes: tuple[int, int] = NODES, max_theta: float = MAX_THETA,
              seed: int = 0) -> Samples:
-    """The pairs on which a study measures errors (see the module notes).
+    """Sample the BRDF on the pairs on which a study measures errors (see the module notes).
 
     Parameters
     ----------
@@ -185,9 +207,11 @@ def _uniform_h(u: NDArray, v: NDArray) -> NDArray:
 
 def _represented(cm: CoefficientMatrix, ts: Samples, min_cos: float = 1e-12
                  ) -> NDArray[np.float64]:
-    """f_hat at the test pairs as (n, channels). The default tiny ``min_cos`` means no grazing
-    lift, so that f_hat cos cos is exactly the expansion q_hat; ``min_cos=DEFAULT_MIN_COS`` is
-    what ``cm.eval`` gives a user."""
+    """Return f_hat at the test pairs as (n, channels).
+
+    The default tiny ``min_cos`` means no grazing lift, so that f_hat cos cos is exactly the
+    expansion q_hat; ``min_cos=DEFAULT_MIN_COS`` is what ``cm.eval`` gives a user.
+    """
     out = np.empty((ts.wi.shape[0], cm.channels))
     cm.evaluator(min_cos=min_cos).eval_flat(ts.wi, ts.wo, out)
     return out
@@ -252,7 +276,10 @@ def _pointwise(f: NDArray, fh: NDArray, w: NDArray, zi: NDArray) -> dict[str, fl
 
 
 def _albedo_error(diff: NDArray, ts: Samples, sel: NDArray) -> float | None:
-    """max over the incident nodes in ``sel`` of |int (f_hat - f) cos dw_o| (product rule)."""
+    """Return the max over the incident nodes in ``sel`` of |int (f_hat - f) cos dw_o|.
+
+    The integral is taken by the product rule of the test set.
+    """
     if ts.grid is None:
         return None
     nz, _, nphi = ts.grid
@@ -272,8 +299,10 @@ def _rel(num: NDArray, den: NDArray) -> float:
 
 
 def eval_ns(cm: CoefficientMatrix, *, pairs: int = TIMING_PAIRS, seed: int = 1) -> float:
-    """Nanoseconds per BRDF sample of the fastest evaluator of ``cm`` (best of three runs on
-    ``pairs`` random pairs; all threads; compilation excluded)."""
+    """Time the fastest evaluator of ``cm``: nanoseconds per BRDF sample.
+
+    Best of three runs on ``pairs`` random pairs; all threads; compilation excluded.
+    """
     rng = np.random.default_rng(seed)
     w = rng.normal(size=(2, pairs, 3))
     w[..., 2] = np.abs(w[..., 2])
@@ -334,7 +363,7 @@ class Study:
         return np.array([np.nan if v is None else v for v in vals], dtype=np.float64)
 
     def to_markdown(self) -> str:
-        """The table as GitHub markdown, with the sampling and BRDF as a caption."""
+        """Format the table as GitHub markdown, with the sampling and BRDF as a caption."""
         head = ["kind", "order", "quantity", "coefficients", "bytes", "projection s", "eval ns",
                 *METRICS]
         lines = [f"Study of {self.source} (quantity {self.quantity!r}); {self.sampling}.", "",
@@ -351,15 +380,23 @@ class Study:
         return "\n".join(lines)
 
     def pareto(self, cost: str = "eval_ns", metric: str = "l2") -> NDArray[np.bool_]:
-        """Mask of the rows on the Pareto front of (cost, error): no other row is at least
-        as cheap and at least as accurate, and strictly better in one."""
+        """Return the mask of the rows on the Pareto front of (cost, error).
+
+        A row is on the front when no other row is at least as cheap and at least as
+        accurate, and strictly better in one.
+        """
         return pareto_front(self.column(cost), self.column(metric))
 
     def plot(self, path: str, *, metric: str = "l2") -> Path:
-        """Write a PNG with three panels: error vs order, error vs bytes and error vs
-        evaluation time (one line per kind; the Pareto front over all rows marked).
+        """Write a PNG of the error against order, bytes and evaluation time.
 
-        Returns the path written (atomically).
+        Three panels: error vs order, error vs bytes and error vs evaluation time (one line
+        per kind; the Pareto front over all rows marked).
+
+        Returns
+        -------
+        pathlib.Path
+            The path written (atomically).
         """
         if metric not in METRICS:
             raise ValueError(f"metric must be one of {', '.join(METRICS)}, got {metric!r}")

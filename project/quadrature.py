@@ -67,17 +67,21 @@ def project(
     Parameters
     ----------
     brdf : BRDF
-        Any object with ``eval(wi, wo)``, ``channels`` and ``isotropic`` (DESIGN.md); ideal
-        mirror terms listed in ``brdf.delta`` are projected in closed form.
+        Any object with ``eval(wi, wo)``, ``channels`` and ``isotropic``. ``eval`` takes
+        float64 unit vectors of shape (..., 3) in the local frame (z the surface normal,
+        both directions pointing away from the surface) and returns (...) or
+        (..., channels) values. Ideal mirror terms listed in ``brdf.delta`` are projected in
+        closed form.
     basis : basis.Basis
         ``HemiZernike``, ``HemiHarmonics`` or ``SphericalHarmonics`` (for the full sphere the
         BRDF is zero below the horizon, so only the upper hemisphere is integrated).
     quantity : {"auto", "f_cos", "f"}
-        What the matrix represents: f cos(theta_i) cos(theta_o) (Westin's choice: bounded at
-        grazing, mirror terms have finite coefficients) or f. ``"auto"`` (default) picks what
-        stays accurate on all of H x H when the matrix is evaluated as a BRDF, see
-        :func:`default_quantity`: ``"f_cos"`` for bases that vanish on the horizon (the odd
-        hemisphere harmonics) and for BRDFs with mirror terms, ``"f"`` otherwise.
+        What the matrix represents: f cos(theta_i) cos(theta_o) (the choice of Westin, Arvo
+        & Torrance 1992, sec. 2.5: bounded at grazing, mirror terms have finite
+        coefficients) or f. ``"auto"`` (default) picks what stays accurate on all of H x H
+        when the matrix is evaluated as a BRDF, see :func:`default_quantity`: ``"f_cos"``
+        for bases that vanish on the horizon (the odd hemisphere harmonics) and for BRDFs
+        with mirror terms, ``"f"`` otherwise.
     method : {"quadrature", "montecarlo", "lstsq"}
         ``"quadrature"``: the product rule above, refined by doubling until converged.
         ``"montecarlo"``: scrambled Sobol points in (z_i, phi_i, z_o, phi_o), for BRDFs that
@@ -242,13 +246,13 @@ def _check_brdf(brdf: Any) -> None:
 
 
 def _is_scalar(brdf: Any) -> bool:
-    """True when brdf.eval returns (...) rather than (..., channels)."""
+    """Return True when brdf.eval returns (...) rather than (..., channels)."""
     v = np.asarray(brdf.eval(np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, 1.0])))
     return v.ndim == 0
 
 
 def _eval_pairs(brdf: Any, wi: NDArray, wo: NDArray, channels: int) -> NDArray[np.float64]:
-    """brdf values at (n, 3) pairs as (n, channels), checked finite."""
+    """Evaluate brdf at (n, 3) pairs as (n, channels), checked finite."""
     v = np.asarray(brdf.eval(wi, wo), dtype=np.float64).reshape(wi.shape[0], channels)
     if not np.all(np.isfinite(v)):
         raise ValueError(f"{brdf!r} returned non-finite values at {int(np.sum(~np.isfinite(v)))}"
@@ -508,8 +512,12 @@ def _aniso_rule(brdf, basis, quantity, nz, nphi, grading=1):
 
 
 def _exponential_pairs(order: int) -> tuple[NDArray, NDArray, NDArray]:
-    """Coefficients and (k, b) positions of A_mu(x) A_nu(x - d) = sum alpha e^{i(s m x + t n
-    (x - d))}, for signed mu, nu in -order..order: arrays of shape (2N+1, 2N+1, 4)."""
+    """Expand the products A_mu(x) A_nu(x - d) of azimuthal factors in exponentials.
+
+    Returns the coefficients and (k, b) positions of A_mu(x) A_nu(x - d) =
+    sum alpha e^{i(s m x + t n (x - d))}, for signed mu, nu in -order..order: arrays of shape
+    (2N+1, 2N+1, 4).
+    """
     sig = np.arange(-order, order + 1)
     m = np.abs(sig)
     # alpha(s) for s = +1, -1: cos -> 1/2, 1/2; sin -> 1/(2i), -1/(2i); constant -> 1, 0
@@ -573,8 +581,11 @@ def _add_deltas(blocks_or_dense, deltas, basis, iso):
 
 # -- Monte Carlo and least squares ------------------------------------------------------------
 def _sobol_pairs(n: int, seed: int) -> tuple[NDArray, NDArray]:
-    """2^ceil(log2 n) direction pairs, uniform in solid angle on H x H, from a scrambled Sobol
-    sequence (a power of two keeps the balance properties of the points)."""
+    """Draw 2^ceil(log2 n) direction pairs, uniform in solid angle on H x H.
+
+    The pairs come from a scrambled Sobol sequence (a power of two keeps the balance
+    properties of the points).
+    """
     from scipy.stats import qmc
 
     u = qmc.Sobol(d=4, scramble=True, seed=seed).random_base2(max(1, int(n - 1).bit_length()))
