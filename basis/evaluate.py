@@ -37,7 +37,7 @@ horizon give 0.
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -45,9 +45,6 @@ from numpy.typing import ArrayLike, NDArray
 from ._base import Basis
 from .jit import pjit, prange
 from .validation import as_directions, broadcast_batch, check_bytes
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .matrix import CoefficientMatrix
 
 __all__ = ["Evaluator"]
 
@@ -91,10 +88,9 @@ class Evaluator:
     True
     """
 
-    def __init__(self, cm: CoefficientMatrix, *, min_cos: float = 1e-3) -> None:
-        from .matrix import CoefficientMatrix
-
-        if not isinstance(cm, CoefficientMatrix):
+    def __init__(self, cm: Any, *, min_cos: float = 1e-3) -> None:
+        # duck-typed on what a CoefficientMatrix exposes: basis.matrix builds on this module
+        if not all(hasattr(cm, a) for a in ("stored", "basis", "quantity", "is_isotropic")):
             raise TypeError(f"cm must be a basis.CoefficientMatrix, got {type(cm).__name__}")
         if not 0.0 < min_cos < 1.0:
             raise ValueError(f"min_cos must lie in (0, 1), got {min_cos!r}")
