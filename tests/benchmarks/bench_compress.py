@@ -12,8 +12,10 @@ uniform in solid angle on H x H), RGB:
 - "MERLBRDF.eval": the public call, with validation;
 - for each order in ``--orders`` (default 4, 8, 16), the projection of the table onto
   HemiZernike(order) and HemiHarmonics(order) (odd), truncated from one projection at the
-  highest order, evaluated by ``compress.FastEvaluator`` (no validation: ``eval_flat``) and by
-  ``CoefficientMatrix.eval`` (numpy, at most 2^18 pairs, scaled).
+  highest order, evaluated by ``CoefficientMatrix.eval`` (the public call: validation, then
+  the fused kernel of ``basis.evaluate``), by its ``evaluator().eval_flat`` (no validation),
+  and, for the dense (anisotropic) storage of the same matrix, by ``CoefficientMatrix.eval``
+  on at most 2^18 pairs, scaled.
 
 Every evaluator is called once untimed (compilation, cache, first touch), then all are timed
 in turn for ``--repeats`` rounds; the best call of each is reported. Columns: ms per call,
@@ -112,13 +114,16 @@ def main(argv: list[str] | None = None) -> int:
         print(f"projection onto {full.basis!r}: {time.perf_counter() - t0:.1f} s")
         for order in a.orders:
             cm = compress.truncate(full, order)
-            fe = compress.FastEvaluator(cm)
+            ev = cm.evaluator()
             l2 = compress.errors(cm, ts)["l2"]
-            runs[f"{kind} {order} fast"] = (lambda fe=fe: fe.eval_flat(wi, wo, out3),
-                                            a.pairs, l2)
+            runs[f"{kind} {order} CoefficientMatrix.eval"] = (lambda cm=cm: cm.eval(wi, wo),
+                                                              a.pairs, l2)
+            runs[f"{kind} {order} eval_flat"] = (lambda ev=ev: ev.eval_flat(wi, wo, out3),
+                                                 a.pairs, l2)
+            dense = basis.CoefficientMatrix(cm.basis, cm.matrix, cm.quantity, isotropic=False)
             m = min(a.pairs, 1 << 18)
-            runs[f"{kind} {order} CoefficientMatrix.eval"] = (
-                lambda cm=cm, m=m: cm.eval(wi[:m], wo[:m]), m, l2)
+            runs[f"{kind} {order} dense eval"] = (
+                lambda d=dense, m=m: d.eval(wi[:m], wo[:m]), m, l2)
     best = {k: np.inf for k in runs}
     for fn, _, _ in runs.values():
         fn()
