@@ -6,7 +6,8 @@ estimate of the coefficient matrix of f cos(theta_i) cos(theta_o) in any hemisph
 
 - :class:`GaussianSurface`, :class:`Heightfield`: the specimens.
 - :class:`Scene`, :func:`brushed_metal`, :class:`Mesh`, :class:`BVH`: periodic scenes of
-  meshes, cylinders, tubes, spheres and height fields traced through one BVH.
+  meshes, cylinders, tubes, spheres and height fields traced through one BVH
+  (:class:`ScenePart`: the read-only description of one part, from :attr:`Scene.parts`).
 - :class:`Mirror`, :class:`Diffuse`, :class:`MicroBRDF`, :class:`Dielectric`: facet
   materials (Dielectric: transparent closed solids with absorption inside).
 - :func:`velvet`: transparent fibres with random tilt over an absorbing base.
@@ -26,7 +27,7 @@ from .bvh import BVH, Mesh
 from .cloth import woven_cloth
 from .estimate import SimulationResult, merge, simulate
 from .materials import Dielectric, Diffuse, Material, MicroBRDF, Mirror
-from .scene import Scene, brushed_metal
+from .scene import Scene, ScenePart, brushed_metal
 from .surface import GaussianSurface, Heightfield
 from .trace import Paths, trace
 from .velvet import velvet
@@ -43,6 +44,7 @@ __all__ = [
     "Mirror",
     "Paths",
     "Scene",
+    "ScenePart",
     "SimulationResult",
     "brushed_metal",
     "merge",

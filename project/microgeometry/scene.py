@@ -17,6 +17,7 @@ and Diffuse parts may be mixed in, Dielectric ones not).
 from __future__ import annotations
 
 import hashlib
+from typing import NamedTuple
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -41,10 +42,52 @@ from .materials import DIELECTRIC, MICRO, Material, MicroBRDF, Mirror
 from .surface import Heightfield
 from .wavefront import run_scene_wavefront
 
-__all__ = ["Scene", "brushed_metal"]
+__all__ = ["Scene", "ScenePart", "brushed_metal"]
 
 #: primitive type (bvh.py) of each kind of part
 _PTYPE = {"triangles": TRIANGLE, "cylinder": CYLINDER, "sphere": SPHERE, "tube": TUBE}
+
+
+class ScenePart(NamedTuple):
+    """Read-only description of one part of a :class:`Scene` (see :attr:`Scene.parts`).
+
+    One part is what one ``add_*`` call added: n primitives of one kind and one material.
+
+    Attributes
+    ----------
+    kind : {"triangles", "cylinder", "sphere", "tube"}
+        The kind of the primitives. Meshes, height fields and planes are ``"triangles"``.
+    rows : (n, 9) ndarray of float64
+        One row per primitive, read-only (``rows.flags.writeable`` is False), in the layout
+        of :mod:`project.microgeometry.bvh`:
+
+        - ``"triangles"``: the corners (x0, y0, z0, x1, y1, z1, x2, y2, z2); the outer
+          side is the one the winding normal (v1 - v0) x (v2 - v0) points to;
+        - ``"cylinder"``: (axis, p, cz, r, lo, hi, 0, 0, 0), axis 0 along x (the line
+          y = p, z = cz) or 1 along y (x = p, z = cz), radius r, cut to lo <= x (or y)
+          <= hi, one period long;
+        - ``"sphere"``: (cx, cy, cz, r, 0, 0, 0, 0, 0);
+        - ``"tube"``: (x0, y0, z0, x1, y1, z1, r, caps, 0), caps 1 (closed by discs) or 0.
+    material : Material
+        The facet material of every primitive of the part: the object that was passed in
+        (not a copy), so parts added with one material object share it.
+    tangents : (n, 3) ndarray of float64 or None
+        Unit x axes of the facet frames of a :class:`MicroBRDF` material, one per triangle
+        (read-only), as given to :meth:`Scene.add_mesh` (normalised, turned by
+        :meth:`Scene.rotated`); None where none were given (the frame's x axis is the
+        world x axis projected onto the facet).
+
+    Examples
+    --------
+    >>> part = Scene(1.0).add_sphere([0.5, 0.5, 0.2], 0.1).parts[0]
+    >>> part.kind, part.rows.shape, part.rows[0, :4].tolist(), part.material, part.tangents
+    ('sphere', (1, 9), [0.5, 0.5, 0.2, 0.1], Mirror(), None)
+    """
+
+    kind: str
+    rows: NDArray[np.float64]
+    material: Material
+    tangents: NDArray[np.float64] | None
 
 
 class Scene:
@@ -108,7 +151,7 @@ class Scene:
         if not isinstance(mesh, Mesh):
             raise TypeError(f"mesh must be a Mesh, got {type(mesh).__name__}")
         rows = mesh.triangles().reshape(-1, 9)
-        tan = None if tangents is None else _tangents(tangents, rows.shape[0])
+        tan = None if tangents is None else _frozen(_tangents(tangents, rows.shape[0]))
         self._add("triangles", rows, material)
         self._tangents[-1] = tan
         return self
@@ -242,7 +285,7 @@ class Scene:
                                       "(MicroBRDF scenes are traced bounce by bounce, which "
                                       "supports Mirror, Diffuse and MicroBRDF parts); use "
                                       "Mirror or Diffuse parts next to Dielectric ones")
-        self._parts.append((kind, np.array(rows, dtype=np.float64), material))
+        self._parts.append((kind, _frozen(np.array(rows, dtype=np.float64)), material))
         self._tangents.append(None)
         self._bvh = None
         return self
@@ -262,7 +305,7 @@ class Scene:
         out = Scene((ly, lx))
         for tan in self._tangents:
             out._tangents.append(None if tan is None else
-                                 np.stack([-tan[:, 1], tan[:, 0], tan[:, 2]], 1))
+                                 _frozen(np.stack([-tan[:, 1], tan[:, 0], tan[:, 2]], 1)))
         for kind, rows, mat in self._parts:
             r = rows.copy()
             if kind == "triangles":
@@ -280,8 +323,32 @@ class Scene:
                 r[:, 1] = np.where(a == 0, ly - rows[:, 1], rows[:, 1])
                 r[:, 4] = 0.0
                 r[:, 5] = np.where(a == 0, ly, lx)
-            out._parts.append((kind, r, mat))
+            out._parts.append((kind, _frozen(r), mat))
         return out
+
+    @property
+    def parts(self) -> tuple[ScenePart, ...]:
+        """The parts of the scene, in the order they were added (read-only).
+
+        Returns
+        -------
+        tuple of ScenePart
+            One :class:`ScenePart` (kind, rows, material, tangents) per ``add_*`` call;
+            ``rows`` is (n, 9) and ``tangents`` (n, 3) or None for the n primitives of
+            the part. The arrays are read-only views of the scene's storage (assigning
+            into them raises ValueError) and the tuple cannot be changed either: build a
+            new Scene to change the geometry.
+
+        Examples
+        --------
+        >>> s = Scene(2.0).add_plane(0.5).add_cylinder("y", 1.0, 0.5, 0.25)
+        >>> [(p.kind, p.rows.shape) for p in s.parts]
+        [('triangles', (2, 9)), ('cylinder', (1, 9))]
+        >>> s.parts[1].rows[0, :6].tolist()  # along y (axis 1) at x = 1, z = 0.5, r = 0.25
+        [1.0, 1.0, 0.5, 0.25, 0.0, 2.0]
+        """
+        return tuple(ScenePart(kind, rows.view(), mat, None if tan is None else tan.view())
+                     for (kind, rows, mat), tan in zip(self._parts, self._tangents, strict=True))
 
     def _count(self, kind: str) -> int:
         return sum(r.shape[0] for k, r, _ in self._parts if k == kind)
@@ -463,6 +530,13 @@ def _rough_metal(material: Material | None, roughness: object) -> Material:
     if mirror.ior is None:
         return MicroBRDF(CookTorrance(0.0, m))
     return MicroBRDF(CookTorrance(0.0, m, ior=mirror.ior, k=mirror.k))
+
+
+def _frozen(a: NDArray) -> NDArray:
+    # the array itself, made read-only: stored parts are never written after they are built,
+    # so Scene.parts can hand out views that cannot be made writeable again
+    a.flags.writeable = False
+    return a
 
 
 def _points(value: ArrayLike, name: str) -> NDArray[np.float64]:

@@ -46,6 +46,8 @@ class Heightfield:
         (nx dx, ny dy).
     triangles : int
         2 nx ny.
+    levels : int
+        Levels of the max-height mip pyramid above the cells.
 
     Examples
     --------
@@ -107,6 +109,22 @@ class Heightfield:
     def triangles(self) -> int:
         """Number of triangles per period, 2 nx ny."""
         return 2 * self.heights.size
+
+    @property
+    def levels(self) -> int:
+        """Number of levels of the max-height mip pyramid above the cells (read-only).
+
+        The tracer skips empty space with a pyramid whose level 0 holds, per cell, the
+        highest of its four corners and whose level L + 1 the max over 2 x 2 nodes of level
+        L, built while both dimensions stay even: 0 for a grid with an odd side (a plain
+        cell walk), log2(n) for an n x n grid with n a power of two.
+
+        Examples
+        --------
+        >>> Heightfield(np.zeros((8, 16)), 1.0).levels, Heightfield(np.zeros((6, 7)), 1.0).levels
+        (3, 0)
+        """
+        return self._levels
 
     def slopes(self) -> NDArray[np.float64]:
         """Return the (2 ny nx, 2) facet slopes (dh/dx, dh/dy) of every triangle.

@@ -40,10 +40,10 @@ def cloth(lambert_thread):
 
 
 def _threads(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
-    """(n, 3, 3) triangles of the threads along x and along y (internal part layout)."""
-    (kx, tx, _), (ky, ty, _), (kb, _, _) = scene._parts
-    assert kx == ky == kb == "triangles"
-    return tx.reshape(-1, 3, 3), ty.reshape(-1, 3, 3)
+    """(n, 3, 3) triangles of the threads along x and along y (parts 0 and 1)."""
+    x, y, base = scene.parts
+    assert x.kind == y.kind == base.kind == "triangles"
+    return x.rows.reshape(-1, 3, 3), y.rows.reshape(-1, 3, 3)
 
 
 def _wrapped_ids(points: np.ndarray, period: float) -> np.ndarray:
@@ -136,11 +136,11 @@ def test_weave_is_periodic_and_square_symmetric(cloth):
     # both families share one material object; their facet-frame tangents run along the
     # threads (no across component), up and down the crimp, and the turn maps them onto
     # each other: x family -> y family, y family -> minus the x family
-    assert cloth._parts[0][2] is cloth._parts[1][2]
-    tx, ty = cloth._tangents[:2]
+    assert cloth.parts[0].material is cloth.parts[1].material
+    tx, ty = (p.tangents for p in cloth.parts[:2])
     assert np.all(tx[:, 1] == 0) and np.all(tx[:, 0] > 0) and np.all(ty[:, 0] == 0)
     assert tx[:, 2].max() > 0.5 and tx[:, 2].min() < -0.5  # slope pi h / s = 1.1 at most
-    rot = cloth.rotated()._tangents
+    rot = [p.tangents for p in cloth.rotated().parts]
     np.testing.assert_array_equal(rot[0][:, [1, 2]], tx[:, [0, 2]])
     np.testing.assert_array_equal(np.sort(rot[1][:, 2]), np.sort(tx[:, 2]))
 
@@ -162,10 +162,10 @@ def woven():
     kw = {"spacing": S, "radius": 0.3, "segments": 16, "sides": 8, "negative": "clamp"}
     aniso = woven_cloth(thread, **kw)
     iso = woven_cloth(thread.to_isotropic(), **kw)
-    mat = aniso._parts[0][2]
+    mat = aniso.parts[0].material
     turned = MicroBRDF(MatrixBRDF(mat.brdf.matrix.rotated(0.5 * np.pi), negative="clamp"))
     wrong, world_x = Scene(aniso.period), Scene(aniso.period)
-    for k, (_, rows, m) in enumerate(aniso._parts):
+    for k, (_, rows, m, _) in enumerate(aniso.parts):
         mesh = Mesh(rows.reshape(-1, 3), np.arange(3 * rows.shape[0]).reshape(-1, 3))
         wrong.add_mesh(mesh, material=m)
         world_x.add_mesh(mesh, material=turned if k == 1 else m)
@@ -257,5 +257,5 @@ def test_bad_cloth(lambert_thread):
     with pytest.raises(ValueError, match=r"matrix must be non-negative as a BRDF.*"
                                          r"negative='clamp'"):
         woven_cloth(glossy)
-    assert isinstance(woven_cloth(glossy, negative="clamp")._parts[0][2], MicroBRDF)
-    assert isinstance(woven_cloth(lambert_thread, base=Diffuse(0.5))._parts[2][2], Diffuse)
+    assert isinstance(woven_cloth(glossy, negative="clamp").parts[0].material, MicroBRDF)
+    assert isinstance(woven_cloth(lambert_thread, base=Diffuse(0.5)).parts[2].material, Diffuse)

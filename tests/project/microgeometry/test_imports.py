@@ -165,6 +165,7 @@ def test_public_names_of_trace_stay_importable():
         trace,
     )
 
+    # Paths._fields: the documented namedtuple API, public despite the underscore
     assert trace is public_trace and Paths._fields[0] == "directions"
     assert (MAX_BOUNCES, MAX_STEPS, ROULETTE) == (10_000, 1_000_000, 0.05)
     assert incident_directions(3, np.uint64(1), 0, True).shape == (3, 3)

@@ -26,6 +26,7 @@ from project.microgeometry import (
     MicroBRDF,
     Mirror,
     Scene,
+    ScenePart,
     brushed_metal,
     simulate,
     trace,
@@ -52,6 +53,7 @@ def test_scene_spheres_and_tubes_are_packed_and_counted():
                    [0.01, 0.02], caps=False))
     assert (s.triangles, s.cylinders, s.spheres, s.tubes) == (2, 0, 1, 2)
     assert repr(s) == "Scene(period=[2.0, 1.0], triangles=2, cylinders=0, spheres=1, tubes=2)"
+    # kernel layout: the packed (type, data, material) tables are what the BVH traverses
     pt, pd, mats = s._packed()
     assert pt.tolist() == [TRIANGLE, TRIANGLE, SPHERE, TUBE, TUBE]
     np.testing.assert_array_equal(pd[2], [0.5, 0.5, 0.2, 0.2, 0, 0, 0, 0, 0])
@@ -61,8 +63,51 @@ def test_scene_spheres_and_tubes_are_packed_and_counted():
 
 def test_one_start_many_ends():
     s = Scene(1.0).add_tube([0.5, 0.5, 0.0], [[0.4, 0.5, 0.3], [0.6, 0.5, 0.3]], 0.01)
-    pd = s._packed()[1]
-    np.testing.assert_array_equal(pd[:, 0:3], [[0.5, 0.5, 0.0]] * 2)
+    np.testing.assert_array_equal(s.parts[0].rows[:, 0:3], [[0.5, 0.5, 0.0]] * 2)
+
+
+def test_parts_describe_the_scene_read_only():
+    glass = Dielectric(1.5)
+    s = (Scene((2.0, 1.0)).add_plane(0.25, material=Diffuse(0.5))
+         .add_cylinder("x", 0.5, 0.1, 0.2, material=glass)
+         .add_sphere([[0.5, 0.5, 0.2], [1.5, 0.5, 0.3]], [0.2, 0.1], material=glass)
+         .add_tube([0.1, 0.2, 0.0], [0.2, 0.2, 0.4], 0.01, caps=False)
+         .add_mesh(_SQUARE, tangents=[0.0, 2.0, 0.0]))
+    parts = s.parts
+    assert isinstance(parts, tuple) and all(isinstance(p, ScenePart) for p in parts)
+    assert [p.kind for p in parts] == ["triangles", "cylinder", "sphere", "tube", "triangles"]
+    assert [p.rows.shape for p in parts] == [(2, 9), (1, 9), (2, 9), (1, 9), (2, 9)]
+    assert all(p.rows.dtype == np.float64 for p in parts)
+    np.testing.assert_array_equal(parts[0].rows[:, 2::3], 0.25)  # the plane's corners
+    np.testing.assert_array_equal(parts[1].rows[0], [0, 0.5, 0.1, 0.2, 0, 2.0, 0, 0, 0])
+    np.testing.assert_array_equal(parts[2].rows[:, :4], [[0.5, 0.5, 0.2, 0.2],
+                                                         [1.5, 0.5, 0.3, 0.1]])
+    np.testing.assert_array_equal(parts[3].rows[0], [0.1, 0.2, 0, 0.2, 0.2, 0.4, 0.01, 0, 0])
+    assert repr(parts[0].material) == "Diffuse(0.5)"
+    assert parts[1].material is glass and parts[2].material is glass
+    assert isinstance(parts[3].material, Mirror)
+    assert [p.tangents is None for p in parts] == [True] * 4 + [False]
+    np.testing.assert_array_equal(parts[4].tangents, [[0, 1, 0], [0, 1, 0]])
+    # the counts follow from the parts
+    assert s.spheres == sum(p.rows.shape[0] for p in parts if p.kind == "sphere")
+    # read-only: no array can be written or made writeable, nor the tuple or a part changed
+    before = s.fingerprint()
+    for a in (parts[2].rows, parts[4].tangents):
+        assert not a.flags.writeable
+        with pytest.raises(ValueError, match="read-only"):
+            a[0, 0] = 9.0
+        with pytest.raises(ValueError):
+            a.flags.writeable = True
+    with pytest.raises(TypeError):
+        parts[0] = parts[1]  # type: ignore[index]
+    with pytest.raises(AttributeError):
+        parts[0].kind = "sphere"  # type: ignore[misc]
+    with pytest.raises(AttributeError):
+        s.parts = ()  # type: ignore[misc]
+    assert s.fingerprint() == before
+    # a snapshot: parts added later do not appear in it
+    s.add_plane(0.0)
+    assert len(parts) == 5 and len(s.parts) == 6
 
 
 def test_rotated_scene_turns_spheres_and_tubes(rng):
@@ -360,7 +405,7 @@ def test_tangents_orient_the_microscale_brdf():
     default = simulate(Scene(1.0).add_mesh(_SQUARE, material=MicroBRDF(ward)), b, seed=5, **kw)
     with warnings.catch_warnings():  # low order: the projection's truncation warnings
         warnings.simplefilter("ignore", RuntimeWarning)
-        ref = project(swapped, b).matrix
+        ref = project(swapped, b, quantity="f_cos").matrix  # what simulate estimates
     err = np.abs(along_y.matrix.matrix - ref)
     assert np.all(err <= K_SIGMA * along_y.stderr + 1e-12), np.max(err / along_y.stderr)
     a = rotation_action(b)
@@ -388,10 +433,11 @@ def test_tangents_along_x_change_nothing():
 def test_tangents_turn_with_the_scene_and_enter_the_fingerprint():
     s = Scene((1.0, 2.0)).add_plane(0.0).add_mesh(_SQUARE, tangents=[[1, 0, 0], [0.6, 0.8, 0]])
     r = s.rotated()
-    assert r._tangents[0] is None
-    np.testing.assert_allclose(r._tangents[1], [[0, 1, 0], [-0.8, 0.6, 0]], rtol=0, atol=1e-16)
+    assert r.parts[0].tangents is None
+    np.testing.assert_allclose(r.parts[1].tangents, [[0, 1, 0], [-0.8, 0.6, 0]], rtol=0,
+                               atol=1e-16)
     plain = Scene((1.0, 2.0)).add_plane(0.0).add_mesh(_SQUARE)
-    assert plain._tangents == [None, None]
+    assert [p.tangents for p in plain.parts] == [None, None]
     assert s.fingerprint() != plain.fingerprint()
     # scenes without tangents keep their fingerprint: that of the parts alone
     assert plain.fingerprint() == Scene((1.0, 2.0)).add_plane(0.0).add_mesh(_SQUARE).fingerprint()

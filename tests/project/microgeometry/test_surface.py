@@ -36,12 +36,23 @@ def test_gaussian_surface_seeded():
 
 def test_pyramid_is_max_of_cells(rng):
     hf = Heightfield(rng.normal(size=(8, 16)), (0.5, 1.0))
-    pyr, offs, levels = hf._pyramid, hf._offsets, hf._levels
-    assert levels == 3  # 8 x 16 -> 4 x 8 -> 2 x 4 -> 1 x 2
+    assert hf.levels == 3  # 8 x 16 -> 4 x 8 -> 2 x 4 -> 1 x 2
+    # kernel layout: the flat pyramid and its level offsets are what the tracer walks
+    pyr, offs = hf._pyramid, hf._offsets
     h = hf.heights
     cell = np.max([h, np.roll(h, -1, 0), np.roll(h, -1, 1), np.roll(h, (-1, -1), (0, 1))], 0)
     assert np.array_equal(pyr[:offs[1]].reshape(8, 16), cell)
     assert pyr[offs[3]:offs[4]].tolist() == [cell[:, :8].max(), cell[:, 8:].max()]
+
+
+def test_levels_is_a_read_only_count():
+    assert Heightfield(np.zeros((8, 16)), 1.0).levels == 3
+    assert Heightfield(np.zeros((4, 4)), 1.0).levels == 2  # 4 x 4 -> 2 x 2 -> 1 x 1
+    assert Heightfield(np.zeros((6, 4)), 1.0).levels == 1  # 6 x 4 -> 3 x 2, then odd
+    hf = Heightfield(np.zeros((5, 4)), 1.0)
+    assert hf.levels == 0
+    with pytest.raises(AttributeError):
+        hf.levels = 2  # type: ignore[misc]
 
 
 # -- bad input --------------------------------------------------------------------------------

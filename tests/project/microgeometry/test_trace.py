@@ -50,7 +50,7 @@ def test_lossless_height_field_albedo_is_one(rough, theta):
 def test_odd_sized_heightfield_traces(rng):
     # no pyramid levels (odd sizes): plain cell walk; lossless mirror keeps every ray
     hf = Heightfield(0.3 * rng.normal(size=(7, 9)), 1.0)
-    assert hf._levels == 0
+    assert hf.levels == 0
     p = trace(hf, direction(40, 20), 5000, seed=1)
     assert np.all(p.weights == 1.0) and np.all(p.directions[:, 2] > 0)
 

@@ -39,8 +39,8 @@ def cone_reflectance(paths, c: np.ndarray) -> tuple[float, float]:
 
 
 def tubes(scene: Scene) -> np.ndarray:
-    """(n, 9) tube rows (x0, y0, z0, x1, y1, z1, r, caps, 0) of a scene (internal layout)."""
-    return np.concatenate([rows for kind, rows, _ in scene._parts if kind == "tube"])
+    """(n, 9) tube rows (x0, y0, z0, x1, y1, z1, r, caps, 0) of a scene."""
+    return np.concatenate([p.rows for p in scene.parts if p.kind == "tube"])
 
 
 # -- geometry ---------------------------------------------------------------------------------
@@ -201,4 +201,4 @@ def test_velvet_bad_input(kwargs, exc, match):
 
 def test_velvet_base_material():
     s = velvet(5.0, 300.0, 6.25e-4, base=Mirror(1.5), count=10)
-    assert [repr(m) for _, _, m in s._parts] == ["Mirror(ior=1.5, k=0)", "Dielectric(1.5)"]
+    assert [repr(p.material) for p in s.parts] == ["Mirror(ior=1.5, k=0)", "Dielectric(1.5)"]
