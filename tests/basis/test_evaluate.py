@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 import basis
-import compress
 from basis import CoefficientMatrix, Evaluator
 from tests.conftest import random_directions
 
@@ -134,12 +133,3 @@ def test_errors(rng):
         cm.eval([0, 0, 2.0], [0, 0, 1.0])
     with pytest.raises(ValueError, match="broadcastable batch shapes"):
         cm.eval(random_directions(rng, 3), random_directions(rng, 4))
-
-
-def test_compress_names_still_work(rng):
-    # compress.FastEvaluator and compress.evaluate from scatmodes 0.1 are the same machinery
-    cm = _random(basis.HemiZernike(3), rng, 3, "f_cos", True)
-    wi = random_directions(rng, 50, upper=True)
-    assert compress.FastEvaluator is Evaluator
-    assert np.array_equal(compress.evaluate(cm, wi, wi[::-1]), cm.eval(wi, wi[::-1]))
-    assert np.array_equal(compress.FastEvaluator(cm)(wi, wi[::-1]), cm.eval(wi, wi[::-1]))
