@@ -7,6 +7,7 @@ Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 """
 
 from .evaluate import FastEvaluator, evaluate
+from .hybrid import Hybrid, hybrid
 from .render import render_sphere, tonemap
 from .scene import Environment, ScenePlan, for_scene, select_order
 from .store import load, save
@@ -27,12 +28,14 @@ __all__ = [
     "METRICS",
     "Environment",
     "FastEvaluator",
+    "Hybrid",
     "Ringing",
     "ScenePlan",
     "Study",
     "errors",
     "evaluate",
     "for_scene",
+    "hybrid",
     "load",
     "lowrank",
     "make_basis",

@@ -1,0 +1,184 @@
+"""Lobe + modes: a compact specular lobe with a spherical-basis residual for the rest.
+
+A narrow specular peak holds almost all of the L2 norm of a glossy BRDF, so truncated
+expansions in any of the bases of :mod:`basis` keep large errors on metals and plastics at
+every practical order. A lobe model (an analytic microfacet lobe or a tabulated factored one)
+captures the peak in a few hundred bytes but misses the broad remainder: the diffuse shape,
+retro-reflection, grazing effects. :func:`hybrid` fits the lobe first and projects the residual
+``f - lobe`` onto a basis, where it is smooth enough for a low order.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+import basis
+import project
+from basis import CoefficientMatrix
+from basis.validation import nonneg_int
+
+__all__ = ["Hybrid", "hybrid"]
+
+
+class Hybrid:
+    """A BRDF held as a lobe plus a coefficient-matrix residual: f = lobe + residual.
+
+    Parameters
+    ----------
+    lobe : BRDF
+        Any object with ``eval(wi, wo)``, ``channels`` and ``isotropic`` (a fitted model of
+        :func:`project.fit_model`, or any model of :mod:`project.models`); ``nbytes`` is read
+        when present (0 otherwise, e.g. for a built-in model whose parameters are not stored).
+    residual : basis.CoefficientMatrix
+        The expansion of ``f - lobe``.
+    info : dict, optional
+        Provenance and errors.
+
+    Attributes
+    ----------
+    channels : int
+        The larger of the lobe's and the residual's channel counts (one broadcasts).
+    isotropic : bool
+        True when both parts are isotropic.
+    reciprocal : bool
+        True: both parts are reciprocal (the residual by construction).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from basis import CoefficientMatrix, HemiZernike
+    >>> from project.models import Lambert
+    >>> zb = HemiZernike(2)
+    >>> M = np.zeros((zb.size, zb.size)); M[0, 0] = 0.2  # f = 0.1 / pi
+    >>> h = Hybrid(Lambert(0.4), CoefficientMatrix(zb, M, quantity="f"))
+    >>> w = np.array([0.0, 0.0, 1.0])
+    >>> bool(np.isclose(h.eval(w, w), 0.5 / np.pi))
+    True
+    """
+
+    reciprocal = True
+    delta: tuple = ()
+
+    def __init__(self, lobe: Any, residual: CoefficientMatrix,
+                 info: dict[str, Any] | None = None) -> None:
+        for attr in ("eval", "channels", "isotropic"):
+            if not hasattr(lobe, attr):
+                raise TypeError(f"lobe must be a BRDF with eval(wi, wo), channels and isotropic "
+                                f"(e.g. project.models.CookTorrance(...)); "
+                                f"{type(lobe).__name__} has no {attr!r}")
+        if not isinstance(residual, CoefficientMatrix):
+            raise TypeError(f"residual must be a basis.CoefficientMatrix, got "
+                            f"{type(residual).__name__}")
+        lc, rc = int(lobe.channels), residual.channels
+        if lc != rc and 1 not in (lc, rc):
+            raise ValueError(f"lobe and residual channels must match or one be 1, got {lc} "
+                             f"and {rc}")
+        self.lobe = lobe
+        self.residual = residual
+        self.channels = max(lc, rc)
+        self.isotropic = bool(lobe.isotropic) and residual.is_isotropic
+        self.info: dict[str, Any] = dict(info or {})
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of what is stored: the lobe's parameters and the residual's coefficients."""
+        return int(getattr(self.lobe, "nbytes", 0)) + self.residual.nbytes
+
+    def eval(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
+        """Evaluate f(w_i, w_o) = lobe + residual in 1/sr.
+
+        Parameters
+        ----------
+        wi, wo : (..., 3) array_like of float
+            Unit vectors (towards the light and towards the viewer); batch shapes broadcast.
+
+        Returns
+        -------
+        (...) or (..., channels) ndarray
+            (...) only when both parts are single-channel without a channel axis; zero below
+            the horizon.
+        """
+        return _combine(self.lobe.eval(wi, wo), self.residual.eval(wi, wo), 1.0)
+
+    def __repr__(self) -> str:
+        return f"Hybrid({self.lobe!r} + {self.residual!r})"
+
+
+class _Residual:
+    """f - lobe as a BRDF for projection: the values may be negative, which is the point."""
+
+    reciprocal = True
+
+    def __init__(self, brdf: Any, lobe: Any) -> None:
+        self.brdf, self.lobe = brdf, lobe
+        self.channels = max(int(brdf.channels), int(lobe.channels))
+        self.isotropic = bool(brdf.isotropic) and bool(lobe.isotropic)
+        self.delta = tuple(getattr(brdf, "delta", ()) or ())  # mirror terms stay residual
+
+    def eval(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
+        return _combine(self.brdf.eval(wi, wo), self.lobe.eval(wi, wo), -1.0)
+
+    def __repr__(self) -> str:
+        return f"({self.brdf!r} - {self.lobe!r})"
+
+
+def _combine(a: ArrayLike, b: ArrayLike, sign: float) -> NDArray[np.float64]:
+    """Return a + sign * b for BRDF values of which at most one lacks the channel axis."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    if a.ndim < b.ndim:
+        a = a[..., None]
+    elif b.ndim < a.ndim:
+        b = b[..., None]
+    return a + sign * b
+
+
+def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernike",
+           metric: str = "l2", lobe_options: dict[str, Any] | None = None,
+           **project_kwargs: Any) -> Hybrid:
+    """Fit a lobe to ``brdf`` and expand the residual ``brdf - lobe`` in a basis.
+
+    Parameters
+    ----------
+    brdf : BRDF
+        The BRDF to represent (an analytic model, a MERL table, ...).
+    order : int
+        Order of the residual's basis.
+    lobe : str or BRDF
+        A family of :func:`project.fit_model` (fitted to ``brdf`` with ``metric`` and
+        ``lobe_options``), or a lobe already fitted (any BRDF), used as it is.
+    kind : str
+        Basis kind of the residual, one of :data:`basis.KINDS`.
+    metric : {"l2", "log"}
+        Passed to :func:`project.fit_model` when the lobe is fitted here.
+    lobe_options : dict, optional
+        Further options of :func:`project.fit_model`.
+    **project_kwargs
+        Passed to :func:`project.project` for the residual (``quantity``, ``tol``, ...);
+        the quantity defaults to :func:`project.default_quantity` of the basis.
+
+    Returns
+    -------
+    Hybrid
+        ``info`` holds the residual's projection info (``residual_truncation_error``: the
+        L2 truncation error of the residual's expansion relative to the residual itself),
+        the lobe's bytes and the total bytes.
+    """
+    order = nonneg_int(order, "order")
+    b = basis.make_basis(kind, order)
+    if isinstance(lobe, str):
+        from project.fitting import fit_model
+
+        lobe = fit_model(brdf, lobe, metric=metric, **dict(lobe_options or {}))
+    elif lobe_options:
+        raise ValueError("lobe_options apply only when the lobe is fitted here (lobe given "
+                         "as a family name)")
+    res = project.project(_Residual(brdf, lobe), b, **project_kwargs)
+    info = {"source": repr(brdf), "order": order, "kind": kind,
+            "residual_truncation_error": res.info.get("truncation_error"),
+            "lobe_bytes": int(getattr(lobe, "nbytes", 0)), "residual_bytes": res.nbytes}
+    out = Hybrid(lobe, res, info)
+    out.info["bytes"] = out.nbytes
+    return out

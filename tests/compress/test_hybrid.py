@@ -1,0 +1,71 @@
+"""compress.hybrid: lobe + residual expansion. References: a BRDF that is its own lobe (the
+residual vanishes), and a lobe plus a Lambertian (the residual is one coefficient)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import basis
+from compress import Hybrid, hybrid
+from project.models import CookTorrance, Lambert, Phong
+from tests.conftest import random_directions
+
+
+class _Sum:
+    """Two BRDFs added: the reference for a lobe + Lambert decomposition."""
+
+    isotropic = True
+    reciprocal = True
+
+    def __init__(self, a, b):
+        self.a, self.b, self.channels = a, b, 1
+
+    def eval(self, wi, wo):
+        return self.a.eval(wi, wo) + self.b.eval(wi, wo)
+
+
+def test_lobe_only_brdf_has_zero_residual(rng):
+    lobe = CookTorrance(0.0, 0.2, distribution="ggx", ior=1.5)
+    h = hybrid(lobe, 4, lobe=lobe)
+    assert np.max(np.abs(h.residual.matrix)) == 0.0  # exact zeros: f - lobe is 0 everywhere
+    wi, wo = random_directions(rng, 200, upper=True), random_directions(rng, 200, upper=True)
+    np.testing.assert_array_equal(h.eval(wi, wo), lobe.eval(wi, wo))
+    assert h.nbytes == h.residual.nbytes and h.info["lobe_bytes"] == 0
+
+
+def test_lambert_residual_is_one_coefficient(rng):
+    # f = lobe + a / pi; the residual a / pi = 2a K_0^0 K_0^0 in Zernike as quantity "f"
+    lobe = Phong(0.0, 0.5, 30.0)
+    h = hybrid(_Sum(lobe, Lambert(0.3)), 6, lobe=lobe, tol=1e-10)
+    m = h.residual.matrix
+    assert h.residual.quantity == "f"
+    assert m[0, 0] == pytest.approx(0.6, rel=1e-12)
+    assert np.max(np.abs(m - np.diag([0.6] + [0.0] * (m.shape[0] - 1)))) < 1e-12
+    wi, wo = random_directions(rng, 300, upper=True), random_directions(rng, 300, upper=True)
+    np.testing.assert_allclose(h.eval(wi, wo), lobe.eval(wi, wo) + 0.3 / np.pi, rtol=1e-11)
+
+
+def test_channels_broadcast_between_parts():
+    zb = basis.HemiZernike(2)
+    m = np.zeros((3, zb.size, zb.size))
+    m[:, 0, 0] = [0.2, 0.4, 0.6]
+    h = Hybrid(Lambert(0.5), basis.CoefficientMatrix(zb, m, quantity="f"))
+    v = h.eval([0, 0, 1.0], [0.6, 0, 0.8])
+    np.testing.assert_allclose(v, (0.5 + np.array([0.1, 0.2, 0.3])) / np.pi, rtol=1e-14)
+    assert h.channels == 3 and h.isotropic and "Hybrid(Lambert" in repr(h)
+
+
+def test_errors():
+    zb = basis.HemiZernike(2)
+    cm = basis.CoefficientMatrix(zb, np.zeros((zb.size, zb.size)), quantity="f")
+    with pytest.raises(TypeError, match="lobe must be a BRDF"):
+        Hybrid(object(), cm)
+    with pytest.raises(TypeError, match="residual must be a basis.CoefficientMatrix"):
+        Hybrid(Lambert(0.5), np.eye(2))
+    with pytest.raises(ValueError, match="channels must match"):
+        Hybrid(Lambert([0.1, 0.2]), basis.CoefficientMatrix(zb, np.zeros((3, 6, 6)), "f"))
+    with pytest.raises(ValueError, match="lobe_options apply only"):
+        hybrid(Lambert(0.5), 2, lobe=Lambert(0.1), lobe_options={"restarts": 2})
+    with pytest.raises(ValueError, match="kind must be one of"):
+        hybrid(Lambert(0.5), 2, lobe=Lambert(0.1), kind="wavelets")
