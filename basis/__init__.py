@@ -7,6 +7,9 @@ quadrature rules, the symmetric coefficient matrix and its evaluation.
 on it, never the other way round.
 """
 
+from importlib.metadata import PackageNotFoundError
+from importlib.metadata import version as _distribution_version
+
 from ._base import AzimuthalBlocks, Basis
 from .directions import from_angles, from_rusinkiewicz, to_angles, to_rusinkiewicz
 from .evaluate import Evaluator
@@ -16,6 +19,11 @@ from .modes import HelmholtzModes
 from .quadrature import HemisphereRule, hemisphere_rule, sphere_rule
 from .sh import HemiHarmonics, SphericalHarmonics
 from .zernike import HemiZernike, zernike_radial
+
+try:  # the distribution "scatmodes" holds basis, project and compress: one version for all
+    __version__ = _distribution_version("scatmodes")
+except PackageNotFoundError:  # pragma: no cover - imported from a source tree, not installed
+    __version__ = "unknown"
 
 __all__ = [
     "KINDS",

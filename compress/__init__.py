@@ -6,6 +6,8 @@ and charts, HDF5 storage, pictures of a BRDF on a lit sphere, and the ``scatmode
 Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 """
 
+from basis import __version__  # noqa: F401 - one version for the distribution
+
 from .evaluate import FastEvaluator, evaluate
 from .hybrid import Hybrid, hybrid
 from .render import render_sphere, tonemap

@@ -9,6 +9,8 @@
 Imports flow one way: ``compress`` -> ``project`` -> ``basis``.
 """
 
+from basis import __version__  # noqa: F401 - one version for the distribution
+
 from . import measured, models
 from .brdf import BRDF, MirrorDelta
 from .lstsq import bin_samples, fit, read_table, tessellate_hemisphere
