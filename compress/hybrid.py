@@ -137,7 +137,7 @@ def _combine(a: ArrayLike, b: ArrayLike, sign: float) -> NDArray[np.float64]:
 
 def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernike",
            metric: str = "l2", lobe_options: dict[str, Any] | None = None,
-           **project_kwargs: Any) -> Hybrid:
+           error_samples: int = 1 << 15, seed: int = 1, **project_kwargs: Any) -> Hybrid:
     """Fit a lobe to ``brdf`` and expand the residual ``brdf - lobe`` in a basis.
 
     Parameters
@@ -155,6 +155,10 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
         Passed to :func:`project.fit_model` when the lobe is fitted here.
     lobe_options : dict, optional
         Further options of :func:`project.fit_model`.
+    error_samples : int
+        Pairs of :func:`project.sampling.peak_resolving_pairs` on which the errors of the
+        result are measured (0: skip); ``seed`` seeds them.
+    seed : int
     **project_kwargs
         Passed to :func:`project.project` for the residual (``quantity``, ``tol``, ...);
         the quantity defaults to :func:`project.default_quantity` of the basis.
@@ -162,9 +166,12 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
     Returns
     -------
     Hybrid
-        ``info`` holds the residual's projection info (``residual_truncation_error``: the
-        L2 truncation error of the residual's expansion relative to the residual itself),
-        the lobe's bytes and the total bytes.
+        ``info`` holds ``residual_truncation_error`` (the L2 truncation error of the
+        residual's expansion relative to the residual itself), the lobe's, residual's and
+        total bytes, and the errors of the whole against ``brdf``: ``l2`` (relative L2 of
+        f cos cos over H x H), ``log`` and ``l2_stderr``, measured on pairs concentrated
+        around the mirror direction as well as uniform (:mod:`project.sampling`), so sharp
+        peaks are resolved.
     """
     order = nonneg_int(order, "order")
     b = basis.make_basis(kind, order)
@@ -181,4 +188,8 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
             "lobe_bytes": int(getattr(lobe, "nbytes", 0)), "residual_bytes": res.nbytes}
     out = Hybrid(lobe, res, info)
     out.info["bytes"] = out.nbytes
+    if nonneg_int(error_samples, "error_samples"):
+        from project.sampling import brdf_errors, peak_resolving_pairs
+
+        out.info.update(brdf_errors(brdf, out, peak_resolving_pairs(error_samples, seed=seed)))
     return out

@@ -32,6 +32,7 @@ def test_lobe_only_brdf_has_zero_residual(rng):
     wi, wo = random_directions(rng, 200, upper=True), random_directions(rng, 200, upper=True)
     np.testing.assert_array_equal(h.eval(wi, wo), lobe.eval(wi, wo))
     assert h.nbytes == h.residual.nbytes and h.info["lobe_bytes"] == 0
+    assert h.info["l2"] == 0.0 and h.info["l2_stderr"] == 0.0
 
 
 def test_lambert_residual_is_one_coefficient(rng):
@@ -44,6 +45,18 @@ def test_lambert_residual_is_one_coefficient(rng):
     assert np.max(np.abs(m - np.diag([0.6] + [0.0] * (m.shape[0] - 1)))) < 1e-12
     wi, wo = random_directions(rng, 300, upper=True), random_directions(rng, 300, upper=True)
     np.testing.assert_allclose(h.eval(wi, wo), lobe.eval(wi, wo) + 0.3 / np.pi, rtol=1e-11)
+    assert h.info["l2"] < 1e-11  # peak-resolving estimate of an exact representation
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of")  # the residual is a sharp difference
+def test_errors_resolve_the_peak():
+    # a sharp lobe as the BRDF, a wider one as the lobe: the residual at order 4 cannot
+    # hold the difference, and the peak-resolving estimate says so with a standard error
+    brdf = CookTorrance(0.1, 0.05, distribution="ggx", ior=1.5)
+    h = hybrid(brdf, 4, lobe=CookTorrance(0.1, 0.08, distribution="ggx", ior=1.5),
+               error_samples=1 << 14)
+    assert 0.05 < h.info["l2"] < 1.0
+    assert 0 < h.info["l2_stderr"] < 0.2 * h.info["l2"]
 
 
 def test_channels_broadcast_between_parts():
