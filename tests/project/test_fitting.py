@@ -1,0 +1,292 @@
+"""fit_model and FittedModel: parameter recovery from each family's own noise-free data, the
+fitted models equal the library's own models where they coincide, the BRDF contract, the
+reported errors and parameter standard errors recomputed independently, warnings on
+non-convergence, bad input, and one fit of a MERL-format surrogate (skipped when ../shared is
+absent)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from project.brdf import BRDF
+from project.fitting import FAMILIES, FittedModel, fit_model
+from project.models import CookTorrance, GlossyPaint, Lafortune, Lambert
+from project.sampling import brdf_errors, peak_resolving_pairs
+
+SQRT2 = np.sqrt(2.0)
+#: small problems keep the file fast; the sampler still resolves lobes of these widths
+FAST = {"n": 2048, "restarts": 2, "error_n": 4096}
+
+
+def lafortune_params(kd, rho, t, n):
+    """Parameters of the "lafortune" family from t = n log(-Cx) per lobe (Cz = 1)."""
+    t, n = np.atleast_1d(t), np.atleast_1d(n)
+    return {"kd": kd, "rho": rho, "cx": -np.exp(t / n), "cz": np.ones(n.size), "n": n}
+
+
+TRUTH = {
+    "lambert+ggx": {"kd": [0.3, 0.2, 0.1], "ks": [0.8, 0.9, 1.0], "alpha": 0.08, "f0": 0.3},
+    "lambert+beckmann": {"kd": [0.1, 0.25, 0.4], "ks": [0.5, 0.5, 0.6], "alpha": 0.15,
+                         "f0": 0.1},
+    # an off-specular lobe (Cx = -exp(1.5 / 40) = -1.038: it grows towards grazing)
+    "lafortune": lafortune_params([0.2, 0.3, 0.4], [[0.5, 0.4, 0.3]], 1.5, 40.0),
+}
+
+
+# -- the fitted models are the library's models -------------------------------------------------
+
+@pytest.mark.parametrize("dist", ["ggx", "beckmann"])
+def test_microfacet_family_is_cook_torrance(dist):
+    """With ks = 1 and f0 = 1 (F = 1) the family is project.models.CookTorrance (separable
+    Smith G, ior=None): the lobe is the library's own, evaluated by that class. Agreement to
+    1e-12 relative: alpha is stored as log(alpha), and exp(log(alpha)) is within 1 ulp of
+    alpha, which the Beckmann exp(-tan^2 / m^2) amplifies by 2 tan^2 / m^2 (< 1400 where
+    the value has not underflowed): 1400 x 2.2e-16 = 3e-13 (measured 2.3e-13)."""
+    s = peak_resolving_pairs(1024, seed=4)
+    m = FittedModel(f"lambert+{dist}", {"kd": [0.5, 0.2, 0.0], "ks": [1.0, 1.0, 1.0],
+                                        "alpha": 0.12, "f0": 1.0})
+    ref = CookTorrance([0.5, 0.2, 0.0], 0.12, dist)
+    np.testing.assert_allclose(m.eval(s.wi, s.wo), ref.eval(s.wi, s.wo), rtol=1e-12, atol=0)
+
+
+def test_lafortune_family_is_lafortune_model():
+    """The "lafortune" family equals project.models.Lafortune (Lafortune et al. 1997, eq. 4)
+    with per-channel C = (rho (n + 2)/(2 pi))^(1/n) (Cx, Cx, 1): the normalisation taken out
+    of the C's is put back. Agreement to 1e-11 relative: the exponent n and t = n log(-Cx)
+    are stored, and the 1/n power then the n-th power lose a few ulp times n."""
+    p = lafortune_params([0.1, 0.2, 0.3], [[0.5, 0.4, 0.3], [0.05, 0.1, 0.2]],
+                         [0.0, 2.0], [60.0, 3.0])
+    m = FittedModel("lafortune", p)
+    lobes = []
+    for j in range(2):
+        scale = (np.asarray(p["rho"][j]) * (p["n"][j] + 2) / (2 * np.pi)) ** (1 / p["n"][j])
+        cx = p["cx"][j] * scale
+        lobes.append((cx, cx, scale, p["n"][j]))
+    ref = Lafortune(p["kd"], lobes)
+    s = peak_resolving_pairs(1024, seed=5)
+    np.testing.assert_allclose(m.eval(s.wi, s.wo), ref.eval(s.wi, s.wo), rtol=1e-11, atol=0)
+
+
+# -- recovery ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("family", list(TRUTH))
+def test_recovers_parameters_from_own_model(family):
+    """Noise-free data from the family's own model with known parameters: the truth is the
+    global minimum (cost 0), and near a zero-residual minimum Gauss-Newton converges
+    quadratically, so the fit stops within rounding of it. Measured relative parameter errors
+    <= 1e-9; asserted 1e-6. The l2 error on the independent pairs is ~1e-12 (asserted
+    < 1e-6), and its standard error is as small."""
+    truth = FittedModel(family, TRUTH[family])
+    fit = fit_model(truth, family, **FAST)
+    assert fit.family == family and fit.info["converged"]
+    for name, value in truth.params.items():
+        np.testing.assert_allclose(fit.params[name], value, rtol=1e-6, atol=1e-9,
+                                   err_msg=name)
+    assert fit.info["l2"] < 1e-6 and fit.info["l2_stderr"] < 1e-6
+    assert fit.info["log"] < 1e-6
+
+
+def test_recovers_with_log_metric():
+    """metric="log" reaches the same (exact) minimum from the same starts."""
+    truth = FittedModel("lambert+ggx", TRUTH["lambert+ggx"])
+    fit = fit_model(truth, "lambert+ggx", metric="log", **FAST)
+    assert fit.info["metric"] == "log" and fit.info["fit_log"] < 1e-8
+    np.testing.assert_allclose(fit.params["alpha"], 0.08, rtol=1e-6)
+    np.testing.assert_allclose(fit.params["ks"], [0.8, 0.9, 1.0], rtol=1e-6)
+
+
+# -- the BRDF contract and the report ----------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def misfit():
+    """A Beckmann Cook-Torrance (roughness 0.1, kd per channel) fitted by lambert+ggx: the
+    family cannot match it, so residuals, errors and standard errors are all non-zero."""
+    target = CookTorrance([0.4, 0.3, 0.2], 0.1, "beckmann")
+    return target, fit_model(target, "lambert+ggx", **FAST)
+
+
+def test_fitted_model_obeys_the_brdf_contract(misfit):
+    _, fit = misfit
+    assert isinstance(fit, BRDF) and fit.channels == 3 and fit.isotropic
+    assert fit.nparams == 8 and fit.nbytes == 64
+    wi = np.array([[0.6, 0.0, 0.8], [0.0, 0.0, 1.0]])
+    assert fit.eval(wi[0], wi[1]).shape == (3,)
+    assert fit.eval(wi[:, None, :], wi[None, :, :]).shape == (2, 2, 3)
+    below = np.array([0.6, 0.0, -0.8])
+    np.testing.assert_array_equal(fit.eval(below, wi[1]), 0.0)
+    np.testing.assert_array_equal(fit.eval(wi[0], below), 0.0)
+    s = peak_resolving_pairs(512, seed=9)
+    f = fit.eval(s.wi, s.wo)
+    assert np.all(np.isfinite(f)) and np.all(f >= 0)
+    np.testing.assert_allclose(fit.eval(s.wo, s.wi), f, rtol=1e-12)  # reciprocal
+    assert fit.albedo(wi[1], n_theta=64, n_phi=64).shape == (3,)
+    with pytest.raises(ValueError):
+        fit.params["kd"][0] = 1.0  # read-only
+
+
+def test_info_errors_are_on_independent_pairs(misfit):
+    """info["l2"], ["log"], ["l2_stderr"] equal brdf_errors on
+    peak_resolving_pairs(error_n, seed=seed + 1), recomputed here, not on the fitting pairs."""
+    target, fit = misfit
+    e = brdf_errors(target, fit, peak_resolving_pairs(FAST["error_n"], seed=1))
+    for key in ("l2", "log", "l2_stderr"):
+        assert fit.info[key] == pytest.approx(e[key], rel=1e-12)
+    assert 0 < fit.info["l2_stderr"] < 0.1 * fit.info["l2"]
+    info = fit.info
+    assert len(info["cost"]) == info["restarts"] == 2 and len(info["status"]) == 2
+    assert info["cost"][info["best_restart"]] == min(info["cost"])
+    assert info["iterations"] >= 1 and info["seconds"] > 0
+    assert set(info["param_stderr"]) == set(fit.params)
+
+
+def test_param_stderr_matches_the_formula(misfit):
+    """param_stderr recomputed independently: the l2 residuals sqrt(w) (q_fit - q) / ||q_c||
+    on the fitting pairs (seed 0), differentiated numerically in the natural parameters
+    (forward differences, upwards because kd sits at its bound 0; step 1e-7 relative), then
+    sqrt(diag((J^T J)^-1) sum r^2 / (m - p)). Agreement to 1e-3 relative (forward-difference
+    error ~1e-7 relative; the log scale of alpha in the fit is a linear change of variables
+    at the optimum)."""
+    target, fit = misfit
+    s = peak_resolving_pairs(FAST["n"], seed=0)
+    cc = (s.wi[:, 2] * s.wo[:, 2])[:, None]
+    q = target.eval(s.wi, s.wo) * cc
+    scale = np.sqrt(s.weights)[:, None] / np.sqrt(np.sum(s.weights[:, None] * q * q, 0))
+    names = [("kd", i) for i in range(3)] + [("ks", i) for i in range(3)] + \
+        [("alpha", None), ("f0", None)]
+
+    def residual(params):
+        return (scale * (FittedModel("lambert+ggx", params).eval(s.wi, s.wo) * cc - q)).ravel()
+
+    base = {k: np.array(v, dtype=float) for k, v in fit.params.items()}
+    r = residual(base)
+    jac = []
+    for name, i in names:
+        p = {k: v.copy() for k, v in base.items()}
+        h = 1e-7 * max(abs(float(p[name][i] if i is not None else p[name])), 1e-3)
+        if i is None:
+            p[name] = p[name] + h
+        else:
+            p[name][i] += h
+        jac.append((residual(p) - r) / h)
+    jac = np.array(jac).T
+    s2 = r @ r / (r.size - len(names))
+    expect = np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)) * s2)
+    got = np.concatenate([np.ravel(fit.info["param_stderr"][k]) for k in
+                          ("kd", "ks", "alpha", "f0")])
+    np.testing.assert_allclose(got, expect, rtol=1e-3)
+
+
+# -- warnings and errors -----------------------------------------------------------------------
+
+def test_warns_when_not_converged():
+    target = CookTorrance([0.4, 0.3, 0.2], 0.1, "beckmann")
+    with pytest.warns(RuntimeWarning, match=r"did not converge: every one of the 2 restarts "
+                      r"stopped at max_nfev=2; best l2 error reached on the fitting pairs "
+                      r"\d\.\d+"):
+        fit = fit_model(target, "lafortune", max_nfev=2, **FAST)
+    assert fit.info["converged"] is False and fit.info["status"] == [0, 0]
+
+
+def test_warns_on_delta_terms():
+    with pytest.warns(UserWarning, match="delta"):
+        fit_model(GlossyPaint(0.5, 0.3), "lambert+ggx", **FAST)
+
+
+class _Values(BRDF):
+    """A BRDF returning fixed values (to feed bad data to fit_model)."""
+
+    channels = 3
+    _scalar = False
+
+    def __init__(self, value):
+        self.value = value
+
+    def _eval(self, wi, wo):
+        out = np.full((wi.shape[0], 3), 0.1)
+        out[0] = self.value
+        return out
+
+
+@pytest.mark.parametrize("call, error, match", [
+    (lambda: fit_model(Lambert(0.5), "phong"), ValueError,
+     "family must be one of 'lambert\\+ggx', 'lambert\\+beckmann', 'lafortune', got 'phong'"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", metric="l1"), ValueError,
+     "metric must be one of 'l2', 'log'"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", restart=3), TypeError,
+     "unknown option\\(s\\) 'restart'; the options are 'n', 'seed', 'restarts'"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", lobes=2), ValueError,
+     "option 'lobes' applies to family 'lafortune' only"),
+    (lambda: fit_model(Lambert(0.5), "lafortune", lobes=0), ValueError, "lobes must be >= 1"),
+    (lambda: fit_model(Lambert(0.5), "lafortune", lobes=9), ValueError, "lobes must be <= 8"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", restarts=0), ValueError,
+     "restarts must be >= 1"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", restarts=2.0), TypeError,
+     "restarts must be an integer"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", max_nfev=0), ValueError,
+     "max_nfev must be >= 1 or None"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", seed=3, error_seed=3), ValueError,
+     "error_seed must differ from seed"),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", n=10), ValueError, "n must be >= "),
+    (lambda: fit_model(Lambert(0.5), "lambert+ggx", widths=(0.0,)), ValueError,
+     "widths must be finite, > 0"),
+    (lambda: fit_model("lambert", "lambert+ggx"), TypeError,
+     "brdf must be a BRDF \\(an object with eval\\(wi, wo\\)\\), got str"),
+    (lambda: fit_model(_Values(np.nan), "lambert+ggx", **FAST), ValueError,
+     "brdf must be finite at the fitting pairs: 3 values are NaN or inf"),
+    (lambda: fit_model(_Values(-1.0), "lambert+ggx", **FAST), ValueError,
+     "brdf must be >= 0 at the fitting pairs: 3 values are negative, min -1"),
+    (lambda: fit_model(Lambert([0.5, 0.0]), "lambert+ggx", **FAST), ValueError,
+     "brdf must not be 0 at every fitting pair \\(channel 1\\)"),
+])
+def test_bad_input(call, error, match):
+    with pytest.raises(error, match=match):
+        call()
+
+
+@pytest.mark.parametrize("family, params, error, match", [
+    ("ggx", {}, ValueError, "family must be one of"),
+    ("lambert+ggx", [1, 2], TypeError, "params must be a dict"),
+    ("lambert+ggx", {"kd": 0.5, "ks": 0.5, "alpha": 0.1}, ValueError,
+     "params of family 'lambert\\+ggx' must be exactly \\['alpha', 'f0', 'kd', 'ks'\\]"),
+    ("lambert+ggx", {"kd": [0.5, 0.5], "ks": [0.5], "alpha": 0.1, "f0": 0.5}, ValueError,
+     "params\\['ks'\\] must have shape \\(2,\\)"),
+    ("lambert+ggx", {"kd": 0.5, "ks": -0.5, "alpha": 0.1, "f0": 0.5}, ValueError,
+     "params\\['ks'\\] must be finite and >= 0"),
+    ("lambert+ggx", {"kd": 0.5, "ks": 0.5, "alpha": 0.0, "f0": 0.5}, ValueError,
+     "alpha must be > 0"),
+    ("lambert+ggx", {"kd": 0.5, "ks": 0.5, "alpha": "rough", "f0": 0.5}, TypeError,
+     "params\\['alpha'\\] must be numbers"),
+    ("lafortune", {"kd": [0.1], "rho": [[0.5]], "cx": [-1.0], "cz": [1.1], "n": [10.0]},
+     ValueError, "cz must be 1 \\(the scale of C is in rho\\) and cx < 0"),
+    ("lafortune", {"kd": [0.1], "rho": [[0.5]], "cx": [0.5], "cz": [1.0], "n": [10.0]},
+     ValueError, "cz must be 1 \\(the scale of C is in rho\\) and cx < 0"),
+])
+def test_bad_params(family, params, error, match):
+    with pytest.raises(error, match=match):
+        FittedModel(family, params)
+
+
+def test_families_listed():
+    assert FAMILIES == ("lambert+ggx", "lambert+beckmann", "lafortune")
+
+
+# -- a MERL-format surrogate -------------------------------------------------------------------
+
+def test_blue_acrylic_lambert_ggx(merl_surrogate):
+    """lambert+ggx on the MERL-format surrogate of blue-acrylic (the Sztrajman et al. 2021
+    neural fit written on the MERL grid): a one-lobe fit cannot follow this sharp, bright
+    highlight and the Lambert floor together. Measured (default n = 16384, seeds 0/1): l2 =
+    0.599 with standard error 0.004 (largest in the blue channel), alpha = 0.008, log RMS
+    0.018; 4 restarts all reach the same cost. Asserted: the error is reported with a
+    standard error below 0.02 and lies in [0.55, 0.62] (0.599 +- ~5 standard errors)."""
+    from project.measured import read_merl
+
+    brdf = read_merl(merl_surrogate("blue-acrylic"))
+    fit = fit_model(brdf, "lambert+ggx", restarts=1)
+    info = fit.info
+    print(f"blue-acrylic lambert+ggx: l2 {info['l2']:.4f} +- {info['l2_stderr']:.4f}, "
+          f"log {info['log']:.4f}, {fit}, {info['seconds']:.1f} s")
+    assert info["converged"]
+    assert 0.0 < info["l2_stderr"] < 0.02
+    assert 0.55 < info["l2"] < 0.62
