@@ -88,6 +88,11 @@ def find_cycle(g: dict[str, set[str]]) -> list[str] | None:
     return None
 
 
+def _private(name: str) -> bool:
+    """A leading underscore marks a private name; dunder names (``__version__``) are public."""
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
 def violations(name: str, path: Path) -> list[str]:
     """What module ``name`` imports against the rules of the module notes."""
     pkg = name.split(".")[0]
@@ -96,9 +101,9 @@ def violations(name: str, path: Path) -> list[str]:
         other = target.split(".")[0]
         if other not in ALLOWED[pkg]:
             out.append(f"{name} imports {target}: {pkg} may not use {other}")
-        elif other != pkg and any(p.startswith("_") for p in target.split(".")):
+        elif other != pkg and any(_private(p) for p in target.split(".")):
             out.append(f"{name} imports the private module {target}")
-        elif other != pkg and (imported or "").startswith("_"):
+        elif other != pkg and _private(imported or ""):
             out.append(f"{name} imports the private name {target}.{imported}")
     return out
 
