@@ -496,6 +496,9 @@ def _parser() -> argparse.ArgumentParser:
                "CookTorrance --param kd=0.2 --param roughness=0.3 --orders 2,4,8\n\n"
                "Errors print one line and exit with status 2. 'scatmodes COMMAND --help' "
                "for each command.")
+    from basis import __version__
+
+    p.add_argument("--version", action="version", version=f"scatmodes {__version__}")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     d = sub.add_parser(

@@ -313,6 +313,13 @@ def test_bad_values(tmp_path, capsys, monkeypatch, argv, match):
     assert match in line
 
 
+def test_version(capsys):
+    import basis
+
+    status, out, _ = run(capsys, "--version")
+    assert status == 0 and out.strip() == f"scatmodes {basis.__version__}"
+
+
 def test_no_command(capsys):
     status, _, err = run(capsys)
     assert status == 2
