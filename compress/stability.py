@@ -12,8 +12,9 @@ tables is computed when the function runs, nothing is assumed:
    full-sphere harmonics against the hemisphere bases, and the resulting fit error.
 3. :func:`sparse_fits`: fit error against samples per unknown and noise for each order (the
    brick case of Koenderink, van Doorn & Stavridi 1996, sec. 6, is 66 measurements for 55
-   unknowns at order 8), with and without
-   Tikhonov regularisation, and what the condition number predicts.
+   unknowns at order 8), with and without Tikhonov regularisation (the best weight in
+   hindsight, and the one ``project.fit`` chooses from the data), and what the condition
+   number predicts.
 4. :func:`sharp_lobes`: truncation and quadrature error against roughness and order, Gibbs
    ringing with and without each filter, and the grazing amplification of f = q / (cos cos).
 5. :func:`monte_carlo`: microgeometry simulation error and Westin's Q against rays, noise
@@ -610,7 +611,9 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
         Gaussian noise relative to the RMS of the samples.
     rel_lambdas : sequence of float
         Tikhonov parameters relative to the largest squared singular value of the design
-        matrix; the best of them (an oracle choice: it knows the truth) is reported.
+        matrix; the best of them (an oracle choice: it knows the truth) is reported. The
+        automatic choice of ``project.fit`` (``regularization="auto"``: degree penalty,
+        weight by 10-fold cross-validation on the samples) is reported beside it.
     trials : int
         Independent sample sets per cell; the table shows medians.
     brdf : BRDF, optional
@@ -623,7 +626,10 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
         Per (order, ratio, noise): ``error`` (relative L2 error of the fitted coefficients
         against the quadrature projection at the same order: Parseval, so also the L2 error
         of q against the truncated expansion) by the pseudoinverse, ``error_regularized``
-        (the best Tikhonov parameter), ``best_lambda``, ``gain`` (their ratio), ``cond``
+        (the best Tikhonov parameter), ``best_lambda``, ``gain`` (their ratio),
+        ``error_auto`` (``project.fit`` with ``regularization="auto"``), ``gain_auto``
+        (error / error_auto), ``auto_plain`` (fraction of trials where the automatic
+        choice kept the plain fit), ``cond``
         (condition number of the design matrix), ``bound`` = cond x (relative data
         perturbation: noise plus the truncated tail seen by the samples), the perturbation
         bound on the relative coefficient error, and ``bound_ratio`` = error / bound.
@@ -644,7 +650,7 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
         for ratio in ratios:
             n = max(u, int(round(ratio * u)))
             for sig in noise:
-                res = {k: [] for k in ("e0", "eb", "lam", "cond", "bound")}
+                res = {k: [] for k in ("e0", "eb", "lam", "cond", "bound", "ea", "plain")}
                 for _ in range(trials):
                     wi, wo = _uniform_pairs(rng, n)
                     a = _iso_design(b, wi, wo)
@@ -660,10 +666,18 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
                     res["lam"].append(lams[k] if e[k] < e[0] else 0.0)
                     res["cond"].append(cond)
                     res["bound"].append(cond * pert)
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", RuntimeWarning)
+                        auto = project.fit(wi, wo, yn / (wi[:, 2] * wo[:, 2]), b,
+                                           quantity="f_cos", regularization="auto")
+                    res["ea"].append(float(np.linalg.norm(to_unknowns(auto) - ref)) / rnorm)
+                    res["plain"].append(float(auto.info["regularization"] == 0.0))
                 med = {k: float(np.median(v)) for k, v in res.items()}
                 rows.append(dict(order=b.order, unknowns=u, samples=n, ratio=n / u, noise=sig,
                                  error=med["e0"], error_regularized=med["eb"],
                                  best_lambda=med["lam"], gain=med["e0"] / med["eb"],
+                                 error_auto=med["ea"], gain_auto=med["e0"] / med["ea"],
+                                 auto_plain=float(np.mean(res["plain"])),
                                  cond=med["cond"], bound=med["bound"],
                                  bound_ratio=med["e0"] / med["bound"]))
     atlas = Atlas("3. Sparse and noisy measurements (HemiZernike, isotropic, q = f cos cos)",
@@ -672,6 +686,7 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
         key = f"{r['order']}/{r['samples']}/{r['noise']:g}"
         atlas.facts[f"error@{key}"] = r["error"]
         atlas.facts[f"gain@{key}"] = r["gain"]
+        atlas.facts[f"gain_auto@{key}"] = r["gain_auto"]
         atlas.facts[f"cond@{key}"] = r["cond"]
         atlas.facts[f"bound_ratio@{key}"] = r["bound_ratio"]
     brick = [r for r in rows if r["order"] == 8 and r["samples"] == 66]
@@ -679,12 +694,16 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
         atlas.notes.append(f"brick case (66 samples, 55 unknowns, noise {r['noise']:g}): "
                            f"condition {r['cond']:.3g}, error {r['error']:.3g} by the "
                            f"pseudoinverse, {r['error_regularized']:.3g} regularised "
-                           f"(gain {r['gain']:.3g})")
+                           f"(gain {r['gain']:.3g}), {r['error_auto']:.3g} with the weight "
+                           f"project.fit chooses (gain {r['gain_auto']:.3g})")
     big = [r for r in rows if r["ratio"] >= 8 and r["noise"] > 0]
     if big:
         atlas.notes.append(f"with >= 8 samples per unknown the regularisation gain is at most "
                            f"{max(r['gain'] for r in big):.3g}: it matters only near "
                            "samples ~ unknowns")
+        atlas.notes.append("with >= 8 samples per unknown project.fit's automatic choice kept "
+                           f"the plain fit in {np.mean([r['auto_plain'] for r in big]):.0%} of "
+                           "the trials")
     atlas.notes.append("the bound cond x relative perturbation holds in every row (bound_ratio "
                        f"<= {max(r['bound_ratio'] for r in rows):.3g}); it is pessimistic by "
                        "about the condition number when the noise is white")
@@ -692,6 +711,8 @@ def sparse_fits(orders: Sequence[int] = (4, 6, 8), *,
                           logy=True),
                     Panel("ratio", "error_regularized", ("order", "noise"), {},
                           "best Tikhonov (oracle)", logx=True, logy=True),
+                    Panel("ratio", "error_auto", ("order", "noise"), {},
+                          'project.fit(regularization="auto")', logx=True, logy=True),
                     Panel("ratio", "cond", "order", {"noise": noise[0]}, "condition number",
                           logx=True, logy=True)]
     return atlas

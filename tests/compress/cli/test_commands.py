@@ -139,6 +139,55 @@ def test_fit_recovers_lambert(tmp_path, capsys, rng):
     assert "60 samples" in out and "rank 5 of 5 unknowns" in out and "condition number" in out
     # exact data in the span of the basis: only rounding remains (%.18e text keeps ~1e-16)
     np.testing.assert_allclose(load(path).albedo([0.0, 0.0, 1.0]), 0.5, rtol=0, atol=1e-12)
+    # the default validates the weight: this well-posed fit keeps the plain one
+    assert ("regularization weight 0 (degree penalty, chosen by 10-fold CV on direction "
+            "pairs), 5.0 effective parameters") in out
+    assert re.search(r"validation error [0-9.e-]+ % \(relative RMS at held-out pairs\)", out)
+    assert load(path).info["regularization_method"] == "10-fold CV on direction pairs"
+
+
+def test_fit_regularises_a_rank_deficient_table(tmp_path, capsys, rng):
+    # every incidence at the pole: only the m = 0 functions of w_i are seen (rank 3 of 14 at
+    # order 4), so the plain fit warns and the default regularises without a warning
+    table = tmp_path / "pole.txt"
+    n = 100
+    deg = np.column_stack([np.zeros(n), np.zeros(n), rng.uniform(0, 89, n),
+                           rng.uniform(0, 360, n), np.full(n, 0.5 / np.pi)])
+    np.savetxt(table, deg)
+    status, out, err = run(capsys, "fit", str(table), "--order", "4", "-o",
+                           str(tmp_path / "a.h5"))
+    assert status == 0 and "warning" not in err, err
+    weight = float(re.search(r"regularization weight ([0-9.e+-]+) \(degree penalty", out)[1])
+    assert weight > 0
+    status, out, err = run(capsys, "fit", str(table), "--order", "4", "--regularization", "0",
+                           "-o", str(tmp_path / "p.h5"))
+    assert status == 0 and "rank-deficient" in err
+    assert "regularization weight 0 (identity penalty, given)" in out
+    assert "validation error not computed (weight given)" in out
+    # the chosen weight and penalty given back reproduce the automatic fit
+    status, out, err = run(capsys, "fit", str(table), "--order", "4", "--regularization",
+                           repr(weight), "--penalty", "degree", "-o", str(tmp_path / "r.h5"))
+    assert status == 0, err
+    np.testing.assert_allclose(load(tmp_path / "r.h5").matrix, load(tmp_path / "a.h5").matrix,
+                               rtol=1e-6, atol=1e-9)  # the weight printed to 3 digits
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["--regularization", "-1"], "argument --regularization: must be one of auto, gcv, "
+                                 "leave-incidence-out or a number >= 0, got '-1'"),
+    (["--regularization", "often"], "argument --regularization: must be one of auto"),
+    (["--regularization", "inf"], "got 'inf'"),
+    (["--penalty", "smooth"], "argument --penalty: invalid choice: 'smooth'"),
+])
+def test_fit_bad_regularization(tmp_path, capsys, argv, match):
+    from compress.cli import commands
+    from project.lstsq import REGULARIZATION_METHODS
+
+    assert commands._FIT_METHODS == REGULARIZATION_METHODS
+    table = tmp_path / "t.txt"
+    table.write_text("10 0 20 0 0.1\n")
+    line = one_line_error(capsys, "fit", str(table), *argv, "-o", str(tmp_path / "x.h5"))
+    assert match in line
 
 
 # -- simulate --------------------------------------------------------------------------------
