@@ -41,22 +41,23 @@ def _pairs(n, rng=RNG):
 
 # -- (1) the rule: weights and Jacobian -------------------------------------------------------
 
-@pytest.mark.parametrize("bins,warp", [((90, 32), "sqrt"), ((16, 8), "linear"),
-                                       ((48, 16), "cbrt")])
-def test_rule_integrates_known_functions_over_h_x_h(bins, warp):
+@pytest.mark.parametrize("bins,warp,warp_d", [
+    ((90, 32), "sqrt", "linear"), ((16, 8), "linear", "grazing"), ((48, 16), "cbrt", "linear"),
+    ((32, 24), "cbrt", "grazing")])
+def test_rule_integrates_known_functions_over_h_x_h(bins, warp, warp_d):
     """int 1 = (2 pi)^2, int z_i z_o = pi^2, int (z_i z_o)^2 = (2 pi / 3)^2 and
     int z_i z_o (w_i . w_o) = (2 pi / 3)^2 (w_i . w_o = cos 2 theta_d): the Jacobian
     4 cos(theta_d) sin(theta_h) sin(theta_d) of Rusinkiewicz (1998)."""
-    th, td, phi, w = rusinkiewicz_rule(bins, warp)
+    th, td, phi, w = rusinkiewicz_rule(bins, warp, warp_d=warp_d)
     zi, zo = _cos(th, td, phi)
     assert np.all(zi > 0) and np.all(zo > 0) and np.all(w > 0)
-    # 1 jumps to 0 at the horizon, which is a kink of the phi_d interval in (theta_h,
-    # theta_d): the slowest of the four (measured 9e-6 at the default rule)
-    assert w.sum() == pytest.approx((2 * np.pi) ** 2, rel=3e-5)
-    # measured 1.7e-8 (sqrt, (90, 32)) to 2.8e-7 (cbrt, (48, 16): coarse panels at large theta_h)
+    # measured relative errors over the four rules: 1: 8e-6 to 4e-5 (1 jumps to 0 at the
+    # horizon, a kink of the phi_d interval in (theta_h, theta_d)); z_i z_o: 4e-8 to 3e-7;
+    # (z_i z_o)^2: 2e-10 to 6e-9; z_i z_o cos 2 theta_d: 6e-8 to 2e-7
+    assert w.sum() == pytest.approx((2 * np.pi) ** 2, rel=1e-4)
     assert (w * zi * zo).sum() == pytest.approx(np.pi ** 2, rel=1e-6)
-    assert (w * (zi * zo) ** 2).sum() == pytest.approx((2 * np.pi / 3) ** 2, rel=1e-9)
-    cos2d = np.cos(2 * td)[None, :, None]  # measured 2e-7 at (90, 32)
+    assert (w * (zi * zo) ** 2).sum() == pytest.approx((2 * np.pi / 3) ** 2, rel=3e-8)
+    cos2d = np.cos(2 * td)[None, :, None]
     assert (w * zi * zo * cos2d).sum() == pytest.approx((2 * np.pi / 3) ** 2, rel=1e-6)
 
 
@@ -107,7 +108,7 @@ def test_exact_recovery_rank_one():
     fit = fit_factored(true, rank=1, bins=(16, 8))
     assert fit.info["error"] < 1e-10
     assert fit.info["converged"]
-    np.testing.assert_allclose(fit.kd, true.kd, rtol=1e-9)
+    np.testing.assert_allclose(fit.kd, true.kd, rtol=1e-7)  # measured 2e-9
     np.testing.assert_allclose(_tensor(fit), _tensor(true), rtol=1e-8, atol=1e-10)
     wi, wo = _pairs(2000)
     np.testing.assert_allclose(fit.eval(wi, wo), true.eval(wi, wo), rtol=1e-9)
@@ -150,7 +151,7 @@ def test_cook_torrance_error_falls_with_rank(phi):
     bins = (32, 24, 8) if phi else (32, 24)
     errs = []
     for rank in (1, 2, 3):
-        fit = fit_factored(ct, rank=rank, bins=bins, warp_d="grazing")
+        fit = fit_factored(ct, rank=rank, bins=bins)  # warp_d="grazing", the default
         errs.append(fit.info["error"])
         assert fit.info["converged"]
         if not phi:
@@ -159,8 +160,8 @@ def test_cook_torrance_error_falls_with_rank(phi):
     np.testing.assert_allclose(errs, CT_ERRORS[phi], rtol=0.03)
     # the grazing warp of theta_d pays on this lobe: linear nodes do worse at rank 1
     if not phi:
-        lin = fit_factored(ct, rank=1, bins=bins)
-        assert lin.info["error"] > 1.2 * errs[0]
+        lin = fit_factored(ct, rank=1, bins=bins, warp_d="linear")
+        assert lin.info["error"] > 1.2 * errs[0]  # measured 0.0466 against 0.0351
 
 
 # -- (4) the BRDF contract ---------------------------------------------------------------------
@@ -189,7 +190,8 @@ def test_contract_shapes_horizon_reciprocity(rgb_fit):
     a = 0.7
     rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
     np.testing.assert_allclose(f.eval(wi @ rot.T, wo @ rot.T), v, rtol=1e-9, atol=1e-12)
-    assert "FactoredLobe(rank=2, bins=(32, 12, 6)" in repr(f) and len(repr(f)) < 100
+    assert repr(f) == ("FactoredLobe(rank=2, bins=(32, 12, 6), warp='cbrt', warp_d='grazing', "
+                       "channels=3, nbytes=872)")
 
 
 def test_contract_tables_and_sizes(rgb_fit):
@@ -206,7 +208,9 @@ def test_contract_tables_and_sizes(rgb_fit):
     assert f.kd.shape == (3,) and np.all(f.kd >= 0)
     assert f.theta_h_nodes[0] == 0 and f.theta_h_nodes[-1] == pytest.approx(np.pi / 2)
     assert f.theta_h_nodes[1] == pytest.approx(np.pi / 2 / 31 ** 3)  # the cbrt warp
-    np.testing.assert_allclose(f.theta_d_nodes, np.linspace(0, np.pi / 2, 12))
+    # the grazing warp of theta_d: (pi/2) (1 - (1 - j/11)^2), dense towards pi/2
+    np.testing.assert_allclose(f.theta_d_nodes,
+                               np.pi / 2 * (1 - (1 - np.linspace(0, 1, 12)) ** 2))
     for key in ("error", "error_channels", "floor", "iterations", "converged", "seconds"):
         assert key in f.info
     # continuity: a table is linear between its nodes
@@ -329,8 +333,9 @@ def test_bad_tables_raise():
 
 #: Measured with the defaults (rank 4, bins (32, 24, 8), 2168 bytes) on the blue-acrylic
 #: surrogate (the Sztrajman et al. 2021 network fit of the MERL material of Matusik et al.
-#: 2003): 0.0698, and 0.0696-0.0698 on rules of 51k to 1.6M points. The fit is a local
-#: minimum of a non-convex problem; the bound leaves room for other roundings.
+#: 2003): 0.0703 (0.0698 with warp_d="linear", which moves by < 0.001 on rules of 51k to
+#: 1.6M points). The fit is a local minimum of a non-convex problem; the bound leaves room
+#: for other roundings.
 BLUE_ACRYLIC_ERROR = 0.075
 
 
