@@ -276,6 +276,9 @@ class FactoredLobe(BRDF):
     50.063662
     """
 
+    #: The name of this family in :func:`project.fit_model` and :mod:`compress.store`.
+    family = "factored"
+
     def __init__(self, kd: ArrayLike, h_table: ArrayLike, d_table: ArrayLike, *,
                  phi_table: ArrayLike | None = None, weights: ArrayLike | None = None,
                  warp: str = "cbrt", warp_d: str = "grazing",
@@ -383,6 +386,25 @@ class FactoredLobe(BRDF):
     def nbytes(self) -> int:
         """Storage in bytes, 8 (float64) per stored real."""
         return 8 * self.nparams
+
+    @property
+    def params(self) -> dict[str, NDArray[np.float64]]:
+        """The stored arrays by name, as ``project.FittedModel("factored", params)`` takes them.
+
+        ``kd`` (channels,), ``h_table``, ``d_table`` (with their channel axis), ``phi_table``
+        and ``weights`` when present, and the warp exponents ``warp`` (p) and ``warp_d`` (q)
+        as 0-d arrays; all read-only.
+        """
+        out = {"kd": self.kd, "h_table": self._a, "d_table": self._b}
+        if self._c is not None:
+            out["phi_table"] = self._c
+        if self._w is not None:
+            out["weights"] = self._w
+        out["warp"] = np.array(self._p)
+        out["warp_d"] = np.array(self._pd)
+        for v in out.values():
+            v.flags.writeable = False
+        return out
 
     # -- evaluation -------------------------------------------------------------------------
     def _angles(self, wi: NDArray, wo: NDArray) -> tuple[NDArray, NDArray, NDArray]:

@@ -35,9 +35,23 @@ Families
     lobes (Cx > 0) are not in this family. Lafortune's own per-channel C's are
     (rho_jc (n_j + 2)/(2 pi))^(1/n_j) (Cx_j, Cx_j, 1).
 
+``"factored"`` (kd, tables and colour weights: 271 reals, 2168 bytes, at the defaults)
+    f = kd/pi + sum_k w_k A_k(theta_h) B_k(theta_d) C_k(phi_d), the non-parametric factored
+    lobe of :class:`project.factored.FactoredLobe` (non-negative piecewise-linear tables in
+    the half/difference angles of Rusinkiewicz 1998), fitted by
+    :func:`project.factored.fit_factored` (non-negative alternating least squares on a
+    quadrature rule in those angles; ``metric="l2"`` only). The options are those of
+    ``fit_factored`` (``rank``, ``bins``, ``warp``, ``warp_d``, ``color``, ...) and the
+    error pairs below. Parameters: ``kd`` (C,), ``h_table`` (rank, n_h, 1 or C),
+    ``d_table`` (rank, n_d, 1 or C), optionally ``phi_table`` (rank, n_phi) and
+    ``weights`` (rank, C), and the node spacings ``warp`` and ``warp_d`` (the exponents of
+    :data:`project.factored.WARPS` and :data:`~project.factored.D_WARPS`; not counted in
+    ``nparams``).
+
 Fitting
 -------
-The fitting pairs are ``peak_resolving_pairs(n, seed=seed)``; the BRDF is evaluated there once.
+The parametric families are fitted as follows (for ``"factored"`` see its module). The
+fitting pairs are ``peak_resolving_pairs(n, seed=seed)``; the BRDF is evaluated there once.
 Residuals, one per pair and channel:
 
 - ``metric="l2"``: sqrt(w) (q_model - q) / ||q_c||, q = f cos theta_i cos theta_o, w the
@@ -126,17 +140,23 @@ from scipy.optimize import least_squares, nnls
 from basis.validation import nonneg_int
 
 from .brdf import BRDF
+from .factored import D_WARPS, WARPS, FactoredLobe, fit_factored
 from .models import CookTorrance
 from .sampling import DEFAULT_WIDTHS, brdf_errors, peak_resolving_pairs
 
 __all__ = ["FAMILIES", "FittedModel", "fit_model"]
 
 #: The parametric families :func:`fit_model` knows.
-FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune")
+FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored")
 METRICS = ("l2", "log")
 #: Options of :func:`fit_model` and their defaults (``lobes`` is for "lafortune" only).
 DEFAULTS = {"n": 2 ** 14, "seed": 0, "restarts": 4, "lobes": 1, "max_nfev": None,
             "error_n": 2 ** 16, "error_seed": None, "widths": DEFAULT_WIDTHS}
+#: Options of :func:`fit_model` for family "factored": those of
+#: :func:`project.factored.fit_factored`, and the error pairs.
+FACTORED_OPTIONS = ("rank", "bins", "warp", "warp_d", "color", "samples", "diffuse", "seed",
+                    "max_iter", "tol", "accelerate")
+_ERROR_OPTIONS = ("error_n", "error_seed", "widths")
 _LOG_CAP = 690.0  # cap on log of a lobe value (e^690 ~ 1e299): keeps every value finite
 #: Bounds of the Lafortune exponent n and of t = n log|Cx / Cz|: (V + Cx U)^n <= e^|t|.
 _N_MAX, _T_MAX = 1e5, 20.0
@@ -323,10 +343,15 @@ class _Lafortune:
                      np.ravel(np.stack([t, np.log(n)], axis=1))]
 
 
-def _family(family: object, channels: int, lobes: int = 1) -> _Microfacet | _Lafortune:
+def _check_family(family: object) -> str:
     if not isinstance(family, str) or family not in FAMILIES:
         raise ValueError(f"family must be one of {', '.join(map(repr, FAMILIES))}, got "
                          f"{family!r}")
+    return family
+
+
+def _family(family: object, channels: int, lobes: int = 1) -> _Microfacet | _Lafortune:
+    _check_family(family)
     if family == "lafortune":
         return _Lafortune(lobes, channels)
     return _Microfacet(family.split("+")[1], channels)
@@ -339,12 +364,13 @@ class FittedModel(BRDF):
 
     Parameters
     ----------
-    family : {"lambert+ggx", "lambert+beckmann", "lafortune"}
+    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored"}
     params : dict of str to array_like of float
         The family's parameters (module notes): ``kd``, ``ks`` (C,), ``alpha``, ``f0``
         (scalars) for the microfacet families; ``kd`` (C,), ``rho`` (L, C), ``cx`` (< 0),
-        ``cz`` (= 1), ``n`` (L,) for "lafortune". C, the number of channels, is the length
-        of ``kd``.
+        ``cz`` (= 1), ``n`` (L,) for "lafortune"; the tables of
+        :attr:`project.factored.FactoredLobe.params` for "factored". C, the number of
+        channels, is the length of ``kd``.
     info : dict, optional
         What :func:`fit_model` measured (empty for a model built by hand).
 
@@ -382,6 +408,9 @@ class FittedModel(BRDF):
         if not isinstance(params, Mapping):
             raise TypeError(f"params must be a dict of parameter arrays, got "
                             f"{type(params).__name__}")
+        if _check_family(family) == "factored":
+            self._init_factored(params, info)
+            return
         probe = _family(family, 1)
         kd = _param(params, "kd", 1)
         c = kd.size
@@ -421,10 +450,43 @@ class FittedModel(BRDF):
         self.nbytes = 8 * self.nparams
         self.info = {} if info is None else dict(info)
 
+    def _init_factored(self, params: Mapping[str, ArrayLike], info: dict | None) -> None:
+        required = {"kd", "h_table", "d_table", "warp", "warp_d"}
+        allowed = required | {"phi_table", "weights"}
+        if not required <= set(params) <= allowed:
+            raise ValueError(f"params of family 'factored' must hold {sorted(required)} and "
+                             f"optionally 'phi_table' and 'weights', got {sorted(params)}")
+        warps = {}
+        for name, table in (("warp", WARPS), ("warp_d", D_WARPS)):
+            v = _param(params, name, 0)
+            names = [k for k, p in table.items() if v.ndim == 0 and p == float(v)]
+            if not names:
+                raise ValueError(f"params[{name!r}] must be the exponent of one of the warps "
+                                 f"{table}, got {v}")
+            warps[name] = names[0]
+        # FactoredLobe checks shapes, signs and channels of the tables
+        self._model = FactoredLobe(
+            _param(params, "kd", 1, low=0.0), params["h_table"], params["d_table"],
+            phi_table=params.get("phi_table"), weights=params.get("weights"), **warps)
+        self.family = "factored"
+        self.params = self._model.params
+        self.channels = self._model.channels
+        self._scalar = self.channels == 1
+        self.nparams = self._model.nparams
+        self.nbytes = self._model.nbytes
+        self.info = {} if info is None else dict(info)
+
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
+        if self.family == "factored":
+            return self._model._eval(wi, wo)
         return self._model.value(self._x, _Geometry(wi, wo))
 
     def __repr__(self) -> str:
+        if self.family == "factored":
+            m = self._model
+            return (f"FittedModel('factored', rank={m.rank}, bins={m.bins}, warp={m.warp!r}, "
+                    f"warp_d={m.warp_d!r}, channels={self.channels}, nbytes={self.nbytes})")
+
         def fmt(v: NDArray) -> str:
             return np.array2string(np.asarray(v), precision=4, separator=", ")
         args = ", ".join(f"{k}={fmt(v)}" for k, v in self.params.items())
@@ -457,7 +519,7 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         Any object with ``eval(wi, wo)`` returning finite values >= 0 (an analytic model,
         :func:`project.measured.read_merl`, a coefficient matrix...). Delta terms are not
         fitted (warned).
-    family : {"lambert+ggx", "lambert+beckmann", "lafortune"}
+    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored"}
         See the module notes for each family's parameters and bounds.
     metric : {"l2", "log"}
         What the fit minimises: the relative l2 error of q = f cos theta_i cos theta_o, or
@@ -510,7 +572,8 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
     if not isinstance(metric, str) or metric not in METRICS:
         raise ValueError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
                          f"{metric!r}")
-    _family(family, 1)  # checks the name first
+    if _check_family(family) == "factored":
+        return _fit_factored(brdf, metric, options, start)
     opts = _options(family, options)
     if not callable(getattr(brdf, "eval", None)):
         raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)), got "
@@ -565,6 +628,34 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
                     "error": f"error_n={opts['error_n']}, error_seed={opts['error_seed']}"},
         "seconds": time.perf_counter() - start,
     }
+    return fitted
+
+
+def _fit_factored(brdf: object, metric: str, options: dict, start: float) -> FittedModel:
+    """fit_model(brdf, "factored"): fit_factored, then the errors on independent pairs."""
+    if metric != "l2":
+        raise ValueError(f"family 'factored' is fitted in the l2 metric only, got metric="
+                         f"{metric!r}")
+    unknown = sorted(set(options) - set(FACTORED_OPTIONS) - set(_ERROR_OPTIONS))
+    if unknown:
+        raise TypeError(f"fit_model() got unknown option(s) {', '.join(map(repr, unknown))} "
+                        f"for family 'factored'; its options are "
+                        f"{', '.join(map(repr, FACTORED_OPTIONS + _ERROR_OPTIONS))}")
+    seed = nonneg_int(options.get("seed", 0), "seed")
+    error_n = nonneg_int(options.get("error_n", DEFAULTS["error_n"]), "error_n")
+    error_seed = options.get("error_seed")
+    error_seed = seed + 1 if error_seed is None else nonneg_int(error_seed, "error_seed")
+    widths = options.get("widths", DEFAULTS["widths"])
+    lobe = fit_factored(brdf, **{k: v for k, v in options.items() if k in FACTORED_OPTIONS})
+    fitted = FittedModel("factored", lobe.params)
+    err = brdf_errors(brdf, fitted, peak_resolving_pairs(error_n, seed=error_seed,
+                                                         widths=widths))
+    fitted.info = {**lobe.info, **err, "fit_l2": lobe.info["error"], "metric": metric,
+                   "rank": lobe.rank, "bins": lobe.bins, "warp": lobe.warp,
+                   "warp_d": lobe.warp_d, "restarts": 1,
+                   "samples": {"fit": "project.factored.rusinkiewicz_rule",
+                               "error": f"error_n={error_n}, error_seed={error_seed}"},
+                   "seconds": time.perf_counter() - start}
     return fitted
 
 

@@ -210,7 +210,7 @@ class _Values(BRDF):
 
 @pytest.mark.parametrize("call, error, match", [
     (lambda: fit_model(Lambert(0.5), "phong"), ValueError,
-     "family must be one of 'lambert\\+ggx', 'lambert\\+beckmann', 'lafortune', got 'phong'"),
+     "family must be one of 'lambert\\+ggx', .*'factored'.*, got 'phong'"),
     (lambda: fit_model(Lambert(0.5), "lambert+ggx", metric="l1"), ValueError,
      "metric must be one of 'l2', 'log'"),
     (lambda: fit_model(Lambert(0.5), "lambert+ggx", restart=3), TypeError,
@@ -268,7 +268,54 @@ def test_bad_params(family, params, error, match):
 
 
 def test_families_listed():
-    assert FAMILIES == ("lambert+ggx", "lambert+beckmann", "lafortune")
+    assert FAMILIES[:4] == ("lambert+ggx", "lambert+beckmann", "lafortune", "factored")
+
+
+# -- the factored family ------------------------------------------------------------------------
+
+def test_factored_family_recovers_a_member():
+    """fit_model(..., "factored") on a FactoredLobe with the same nodes: the table is
+    recovered to rounding (as fit_factored itself, tests/project/test_factored.py), and
+    the errors of info, measured on independent peak-resolving pairs, are ~0."""
+    from project.factored import FactoredLobe
+
+    rng = np.random.default_rng(3)
+    true = FactoredLobe([0.2, 0.3, 0.1], 0.1 + rng.random((1, 16, 1)) * [[[1.0]]] * 5,
+                        0.5 + rng.random((1, 8, 3)))
+    fit = fit_model(true, "factored", rank=1, bins=(16, 8), color="theta_d",
+                    error_n=4096)
+    assert isinstance(fit, FittedModel) and fit.family == "factored"
+    assert fit.info["converged"] and fit.info["fit_l2"] < 1e-9
+    assert fit.info["l2"] < 1e-8 and fit.info["log"] < 1e-8
+    assert fit.nparams == 3 + 16 + 8 * 3 and fit.nbytes == 8 * fit.nparams
+    wi = np.array([[0.3, 0.1, 0.9], [0.8, 0.0, 0.2]])
+    wo = np.array([[-0.2, 0.3, 0.9], [0.1, 0.6, 0.5]])
+    wi, wo = (w / np.linalg.norm(w, axis=1, keepdims=True) for w in (wi, wo))
+    np.testing.assert_allclose(fit.eval(wi, wo), true.eval(wi, wo), rtol=1e-8)
+
+
+def test_factored_params_rebuild_the_model():
+    """FittedModel("factored", params) from a fit's params evaluates bit for bit alike,
+    params carry the warps, and the family refuses what it does not know."""
+    from project.models import CookTorrance
+
+    fit = fit_model(CookTorrance(0.1, 0.3, "ggx", ior=1.5), "factored", rank=1,
+                    bins=(12, 8, 4), error_n=1024)
+    assert set(fit.params) == {"kd", "h_table", "d_table", "phi_table", "warp", "warp_d"}
+    again = FittedModel("factored", fit.params)
+    v = np.random.default_rng(0).normal(size=(2, 500, 3)) + [0.0, 0.0, 1.5]
+    wi, wo = v / np.linalg.norm(v, axis=-1, keepdims=True)
+    np.testing.assert_array_equal(again.eval(wi, wo), fit.eval(wi, wo))
+    assert again.eval(wi, wo).shape == (500,)
+    assert "rank=1, bins=(12, 8, 4)" in repr(fit)
+    with pytest.raises(ValueError, match="exponent of one of the warps"):
+        FittedModel("factored", {**fit.params, "warp": 2.5})
+    with pytest.raises(ValueError, match="must hold"):
+        FittedModel("factored", {"kd": [0.1], "h_table": [[1.0, 2.0]]})
+    with pytest.raises(ValueError, match="l2 metric only"):
+        fit_model(CookTorrance(0.1, 0.3, "ggx"), "factored", metric="log")
+    with pytest.raises(TypeError, match="its options are"):
+        fit_model(CookTorrance(0.1, 0.3, "ggx"), "factored", lobes=2)
 
 
 # -- a MERL-format surrogate -------------------------------------------------------------------
