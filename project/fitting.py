@@ -543,6 +543,9 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         ``"cost"`` (final 0.5 sum r^2 per restart), ``"status"`` (scipy's, per restart),
         ``"best_restart"``, ``"converged"``, ``"param_stderr"`` (dict like ``params``),
         ``"metric"``, ``"samples"`` (descriptions of both pair sets) and ``"seconds"``.
+        For "factored": the errors, ``"fit_l2"`` (on the fitting rule) and the report of
+        :func:`project.factored.fit_factored` (``"iterations"``, ``"converged"``,
+        ``"floor"``, ``"history"``, ...).
 
     Raises
     ------
