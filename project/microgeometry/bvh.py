@@ -42,7 +42,10 @@ for the first hit inside each cell.
 
 from __future__ import annotations
 
+import codecs
+import math
 import os
+import re
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -71,6 +74,11 @@ _COST_NODE = 1.0
 _COST_PRIM = 1.0
 
 _BUILDS = ("sah", "median")
+
+#: an OBJ vertex index: optional sign and ASCII digits (int() would also take "1_0", "\u0661")
+_OBJ_INDEX = re.compile(r"[+-]?[0-9]+")
+#: a v or f keyword glued to its first number ("v1.0"): a damaged record, not a new keyword
+_OBJ_GLUED = re.compile(r"[vf][-+.0-9]")
 
 
 class Mesh:
@@ -138,47 +146,108 @@ class Mesh:
 
     @classmethod
     def from_obj(cls, path: str | os.PathLike) -> Mesh:
-        """Read the ``v`` and ``f`` lines of a Wavefront OBJ file.
+        r"""Read the ``v`` and ``f`` lines of a Wavefront OBJ file.
 
         Face entries may be ``i``, ``i/t``, ``i//n`` or ``i/t/n`` (only i is used; negative
         i counts back from the last vertex read so far); polygons with more than three
-        corners are split into a fan around their first corner. Other lines (``vt``, ``vn``,
-        ``o``, ``g``, ``usemtl``, comments, ...) are ignored.
+        corners are split into a fan around their first corner. ``v`` lines take their first
+        three numbers (a fourth weight or trailing colours are ignored). Every other line
+        (``vt``, ``vn``, ``o``, ``g``, ``usemtl``, unknown keywords, ...) is ignored by its
+        first token, as are comments from ``#`` to the end of a line; a line ending in
+        ``\`` continues on the next one (Wavefront, "Object Files (.obj)", Appendix B1 of
+        the Advanced Visualizer manual). A UTF-8 byte-order mark is skipped and bytes that
+        are not UTF-8 are tolerated outside ``v`` and ``f`` lines (comments and names often
+        hold Latin-1).
+
+        Raises
+        ------
+        ValueError
+            Naming the file and line: a ``v`` line without three finite numbers, an ``f``
+            line with fewer than three corners or an index that is not an integer, is 0 or
+            refers to a vertex the file does not define, a keyword glued to its number
+            (``v1.0 2 3``), a file cut off in the middle of a record, no ``f`` line at all,
+            or degenerate triangles.
+        OSError
+            If the file cannot be read.
         """
-        verts: list[list[float]] = []
+        name = os.fspath(path)
+        with open(path, "rb") as fh:
+            data = fh.read()
+        if data.startswith(codecs.BOM_UTF8):
+            data = data[len(codecs.BOM_UTF8):]
+        # bytes.splitlines splits at \n, \r\n and \r only (str.splitlines would also split at
+        # form feeds and Unicode separators inside names)
+        lines = data.splitlines()
+        cut = bool(data) and not data.endswith((b"\n", b"\r"))
+
+        def fail(lineno: int, what: str, line: str) -> ValueError:
+            hint = ""
+            if cut and lineno == len(lines):
+                hint = " (the file ends inside this line without a newline: is it truncated?)"
+            return ValueError(f"{name}:{lineno}: {what}, got {line.strip()!r}{hint}")
+
+        verts: list[tuple[float, float, float]] = []
         faces: list[list[int]] = []
-        with open(path, encoding="utf-8") as fh:
-            for lineno, line in enumerate(fh, 1):
-                parts = line.split()
-                if not parts:
-                    continue
-                if parts[0] == "v":
-                    try:
-                        verts.append([float(x) for x in parts[1:4]])
-                    except ValueError:
-                        raise ValueError(f"{path}:{lineno}: v line must hold three numbers, "
-                                         f"got {line.strip()!r}") from None
-                    if len(verts[-1]) != 3:
-                        raise ValueError(f"{path}:{lineno}: v line must hold three numbers, "
-                                         f"got {line.strip()!r}")
-                elif parts[0] == "f":
-                    try:
-                        idx = [int(p.split("/")[0]) for p in parts[1:]]
-                    except ValueError:
-                        raise ValueError(f"{path}:{lineno}: f line must hold vertex indices, "
-                                         f"got {line.strip()!r}") from None
-                    if len(idx) < 3:
-                        raise ValueError(f"{path}:{lineno}: f line must have >= 3 corners, "
-                                         f"got {line.strip()!r}")
-                    if any(i == 0 for i in idx):
-                        raise ValueError(f"{path}:{lineno}: OBJ vertex indices start at 1, "
-                                         f"got {line.strip()!r}")
-                    idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
-                    faces.extend([idx[0], idx[j], idx[j + 1]] for j in range(1, len(idx) - 1))
+        face_lines: list[int] = []
+        k = 0
+        while k < len(lines):
+            lineno = k + 1
+            raw = lines[k]
+            k += 1
+            while raw.rstrip().endswith(b"\\") and k < len(lines):
+                raw = raw.rstrip()[:-1] + b" " + lines[k]
+                k += 1
+            # '#' is one byte in UTF-8 and Latin-1 alike: cut the comment before decoding
+            raw = raw.split(b"#", 1)[0]
+            line = raw.decode("utf-8", errors="replace")
+            parts = line.split()
+            if not parts:
+                continue
+            key = parts[0]
+            if key == "v":
+                try:
+                    xyz = tuple(float(x) for x in parts[1:4])
+                except ValueError:
+                    xyz = ()
+                if len(xyz) != 3:
+                    raise fail(lineno, "v line must hold three numbers", line)
+                if not all(map(math.isfinite, xyz)):
+                    raise fail(lineno, "v line must hold finite numbers", line)
+                verts.append(xyz)  # type: ignore[arg-type]
+            elif key == "f":
+                corners = [p.split("/")[0] for p in parts[1:]]
+                if not all(_OBJ_INDEX.fullmatch(c) for c in corners):
+                    raise fail(lineno, "f line must hold vertex indices", line)
+                idx = [int(c) for c in corners]
+                if len(idx) < 3:
+                    raise fail(lineno, "f line must have >= 3 corners", line)
+                if any(i == 0 for i in idx):
+                    raise fail(lineno, "OBJ vertex indices start at 1", line)
+                if any(len(verts) + i < 0 for i in idx if i < 0):
+                    raise fail(lineno, f"f line counts back past the first vertex (only "
+                                       f"{len(verts)} read so far)", line)
+                idx = [i - 1 if i > 0 else len(verts) + i for i in idx]
+                for j in range(1, len(idx) - 1):
+                    faces.append([idx[0], idx[j], idx[j + 1]])
+                    face_lines.append(lineno)
+            elif _OBJ_GLUED.match(key):
+                raise fail(lineno, f"keyword {key[0]!r} must be followed by a space", line)
         if not faces:
-            raise ValueError(f"{path} must contain at least one f line, found none")
-        return cls(np.array(verts, dtype=np.float64).reshape(-1, 3),
-                   np.array(faces, dtype=np.int64))
+            raise ValueError(f"{name} must contain at least one f line, found none")
+        # positive indices may refer forward, so they are checked once every v line is read
+        # (a 20-digit index is refused here, before numpy would overflow on it)
+        nv = len(verts)
+        for f, lineno in zip(faces, face_lines, strict=True):
+            if max(f) >= nv:
+                raise ValueError(f"{name}:{lineno}: f line refers to vertex {max(f) + 1}, but "
+                                 f"the file defines only {nv} vertices (is it truncated?)")
+        try:
+            return cls(np.array(verts, dtype=np.float64).reshape(-1, 3),
+                       np.array(faces, dtype=np.int64))
+        except ValueError as err:
+            match = re.search(r"first: face (\d+)", str(err))
+            where = f":{face_lines[int(match.group(1))]}" if match else ""
+            raise ValueError(f"{name}{where}: {err}") from None
 
     def triangles(self) -> NDArray[np.float64]:
         """Return the (F, 3, 3) corner positions of every triangle."""

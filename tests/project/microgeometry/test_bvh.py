@@ -224,6 +224,86 @@ def test_bad_obj(tmp_path, text, match):
         Mesh.from_obj(path)
 
 
+
+# a unit square (two triangles) used by the OBJ robustness tests below
+_SQUARE = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n"
+
+
+def _obj(tmp_path, data: bytes):
+    path = tmp_path / "m.obj"
+    path.write_bytes(data)
+    return path
+
+
+def test_obj_byte_order_mark_keeps_the_first_vertex(tmp_path):
+    # before: "\ufeffv" was an unknown keyword, the first vertex was skipped and the faces
+    # pointed one vertex further (or past the end)
+    m = Mesh.from_obj(_obj(tmp_path, b"\xef\xbb\xbf" + _SQUARE))
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+def test_obj_unknown_keywords_latin1_comments_and_continuations(tmp_path):
+    data = (b"# caf\xe9 cr\xe9\xe9 par un logiciel\n"      # Latin-1, not UTF-8
+            b"o pi\xe8ce\r\n"                            # a Latin-1 name, CRLF
+            b"mtllib x.mtl\nusemtl m\nvp 0.5\ncstype bezier\nfoo 1 2 3\nvt 0 0\n"
+            b"v 0 0 0 # origine \xe0\n"                 # a trailing comment
+            b"v 1 0 0 1.0\n"                             # a weight
+            b"v 1 1 0 0.5 0.5 0.5\n"                     # vertex colours
+            b"v 0 1 \\\n 0\n"                            # a continued line
+            b"f 1/1 2/1 3/1\nf -4 -2 -1 # fan\n")
+    m = Mesh.from_obj(_obj(tmp_path, data))
+    np.testing.assert_array_equal(m.vertices, [[0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+def test_obj_old_mac_line_ends(tmp_path):
+    m = Mesh.from_obj(_obj(tmp_path, _SQUARE.replace(b"\n", b"\r")))
+    assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
+
+
+@pytest.mark.parametrize("data, line, match", [
+    # a 20-digit index: OverflowError from numpy before
+    (_SQUARE + b"f 1 2 12345678901234567890\n", 7,
+     r"refers to vertex 12345678901234567890, but the file defines only 4 vertices"),
+    (_SQUARE + b"f 1 2 5\n", 7, r"refers to vertex 5, but the file defines only 4"),
+    (_SQUARE + b"f 1 2 -5\n", 7, r"counts back past the first vertex"),
+    # the file cut off in the middle of its last record
+    (_SQUARE + b"f 1 2", 7, r"f line must have >= 3 corners.*truncated"),
+    (_SQUARE + b"f 1 2 3/", 7, None),  # cut inside the last corner: still a valid face
+    (b"v 0 0 0\nv 1 0 0\nv 1 1", 3, r"v line must hold three numbers.*truncated"),
+    (b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nv 0 1", 5, r"three numbers.*truncated"),
+    (b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\nv 0 1 1e", 5, r"three numbers.*truncated"),
+    (b"v 0 0 0\nv 1 0 nan\nv 1 1 0\nf 1 2 3\n", 2, r"v line must hold finite numbers"),
+    (b"v 0 0 0\nv1.0 0 0\nv 1 1 0\nf 1 2 3\n", 2, r"keyword 'v' must be followed by a space"),
+    (b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\xe9\n", 4, r"f line must hold vertex indices"),
+    (b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 1_0\n", 4, r"f line must hold vertex indices"),
+    (b"v 0 0 0\nv 1 0 \xe9\nv 1 1 0\nf 1 2 3\n", 2, r"v line must hold three numbers"),
+    (b"v 0 0 0\nv 1 0 0\nv 2 0 0\n\nf 1 2 3\n", 5, r"non-degenerate"),
+], ids=["20-digit", "past-end", "back-past-start", "cut-face", "cut-corner", "cut-vertex",
+        "cut-vertex-after-face", "cut-exponent", "nan", "glued", "latin1-index", "underscore",
+        "latin1-coordinate", "degenerate"])
+def test_obj_damage_names_file_and_line(tmp_path, data, line, match):
+    path = _obj(tmp_path, data)
+    if match is None:
+        assert Mesh.from_obj(path).faces.shape == (3, 3)
+        return
+    with pytest.raises(ValueError, match=match) as err:
+        Mesh.from_obj(path)
+    assert str(err.value).startswith(f"{path}:{line}: ")
+
+
+def test_obj_binary_garbage_is_a_value_error(tmp_path):
+    # a PNG renamed .obj: no v or f record, never a UnicodeDecodeError
+    path = _obj(tmp_path, b"\x89PNG\r\n\x1a\n\x00\x00\x00\rIHDR\xff\xfe\xfd")
+    with pytest.raises(ValueError, match=r"m\.obj must contain at least one f line"):
+        Mesh.from_obj(path)
+
+
+def test_obj_missing_file_is_an_os_error(tmp_path):
+    with pytest.raises(OSError, match="nope.obj"):
+        Mesh.from_obj(tmp_path / "nope.obj")
+
 # -- triangles and cylinders ------------------------------------------------------------------
 
 def test_bvh_triangles_match_brute_force(rng):
