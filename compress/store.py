@@ -690,8 +690,8 @@ class _Reader:
     def matrix(self, g: h5py.Group, kind: str, dtype: np.dtype | None) -> CoefficientMatrix:
         where = g.name
         if kind not in basis.KINDS:
-            self.damaged(f"{where.rstrip('/')}/@basis_kind names an unknown basis kind {kind!r} (known: "
-                         f"{', '.join(map(repr, basis.KINDS))})")
+            self.damaged(f"{where.rstrip('/')}/@basis_kind names an unknown basis kind "
+                         f"{kind!r} (known: {', '.join(map(repr, basis.KINDS))})")
         order = self.integer(g, "basis_order", _MIN_ORDER.get(kind, 0), _MAX_ORDER[kind])
         quantity = self.text(g, "quantity", basis.QUANTITIES)
         channels = self.integer(g, "channels", 1)
@@ -742,9 +742,9 @@ class _Reader:
         where = g.name
         family = self.text(g, "family")
         if family not in FAMILIES:
-            self.damaged(f"{where.rstrip('/')}/@family is {family[:80]!r}, which this library does not "
-                         f"know (families: {', '.join(map(repr, FAMILIES))}); a newer "
-                         "scatmodes may read it")
+            self.damaged(f"{where.rstrip('/')}/@family is {family[:80]!r}, which this library "
+                         f"does not know (families: {', '.join(map(repr, FAMILIES))}); a "
+                         "newer scatmodes may read it")
         dtype = self.dtype(g)
         info = self.info(g)
         pg = self.group(g, "params")
