@@ -720,6 +720,12 @@ class _Reader:
             return self.build(lambda: CoefficientMatrix(b, m[0] if scalar else m, quantity,
                                                          isotropic=False, info=info))
         blocks_g = self.group(g, "blocks")
+        claimed = self.attr(blocks_g, "sizes", required=False)
+        if claimed is not None and not (isinstance(claimed, np.ndarray)
+                                        and claimed.shape == (len(sizes),)
+                                        and np.array_equal(claimed, sizes)):
+            self.damaged(f"{blocks_g.name}/@sizes is {_kind(claimed)}, {kind} order {order} "
+                         f"has the block sizes {sizes[:10]}{'...' if len(sizes) > 10 else ''}")
         names = set(blocks_g)
         want = {f"m{m}" for m in range(len(sizes))}
         if names != want:

@@ -579,3 +579,185 @@ def test_damaged_metadata(tmp_path, rng, change, match):
         assert load(path).basis == basis.HemiZernike(3)
         return
     _refused(path, match)
+
+
+def test_sizes_attribute_must_agree(tmp_path, rng):
+    path = _edit(_zernike3(tmp_path, rng), _set_attr("sizes", [2, 2, 1, 2], "blocks"))
+    _refused(path, r"/blocks/@sizes is an array of int64 with shape \(4,\), zernike order 3 "
+                   r"has the block sizes \[2, 2, 1, 1\]")
+
+
+def test_hybrid_parts_must_agree(tmp_path, rng):
+    h = Hybrid(_ggx(), _iso(basis.HemiZernike(2), rng, 3, quantity="f"))
+    path = save(h, tmp_path / "h.h5")
+
+    def two_channels(f):  # a valid 2-channel lobe against a 3-channel residual
+        for name in ("kd", "ks"):
+            del f[f"lobe/params/{name}"]
+            d = f.create_dataset(f"lobe/params/{name}", data=[0.5, 0.5], fletcher32=True)
+            d.attrs["shape"] = [2]
+
+    _refused(_edit(path, two_channels), "its content is inconsistent: lobe and residual "
+                                        "channels must match or one be 1, got 2 and 3")
+    path = save(h, tmp_path / "h.h5")
+    _refused(_edit(path, _set_attr("family", "phong", "lobe")),
+             "/lobe/@family is 'phong', which this library does not know")
+    path = save(h, tmp_path / "h.h5")
+    _refused(_edit(path, _set_attr("shape", [4], "lobe/params/kd")),
+             r"/lobe/params/kd has shape \(3,\), the schema needs \(4,\)")
+    path = save(h, tmp_path / "h.h5")
+    _refused(_edit(path, lambda f: f.__delitem__("lobe/params/f0")),
+             "content is inconsistent: params of family 'lambert.ggx' must be exactly")
+
+
+# -- fuzz: damaged variants of valid files ----------------------------------------------------
+def _same(a, b) -> bool:
+    """True if two loaded objects hold the same numbers, family and info keys."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, Hybrid):
+        return _same(a.lobe, b.lobe) and _same(a.residual, b.residual)
+    if isinstance(a, CoefficientMatrix):
+        return (a.basis == b.basis and a.quantity == b.quantity
+                and np.array_equal(a.matrix, b.matrix) and a.info.keys() == b.info.keys())
+    return (a.family == b.family and a.params.keys() == b.params.keys()
+            and all(np.array_equal(a.params[k], b.params[k]) for k in a.params))
+
+
+def _finite(obj) -> bool:
+    if isinstance(obj, Hybrid):
+        return _finite(obj.lobe) and _finite(obj.residual)
+    if isinstance(obj, CoefficientMatrix):
+        return bool(np.all(np.isfinite(obj.matrix)))
+    return all(np.all(np.isfinite(v)) for v in obj.params.values())
+
+
+def _structure(path):
+    """(attribute owners with their attribute names, dataset paths) of a file."""
+    owners, datasets = {"/": list(h5py.File(path, "r").attrs)}, []
+    with h5py.File(path, "r") as f:
+        def visit(name, obj):
+            owners["/" + name] = list(obj.attrs)
+            if isinstance(obj, h5py.Dataset):
+                datasets.append("/" + name)
+        f.visititems(visit)
+    return owners, datasets
+
+
+def _edits(path):
+    """(label, change) pairs: every attribute made wrong, every dataset broken."""
+    owners, datasets = _structure(path)
+    bad_values = ["x", 2**40, np.array([1, 2])]
+    for owner, names in owners.items():
+        for name in names:
+            for v in bad_values:
+                yield f"{owner}@{name}={v!r}", _set_attr(name, v, owner)
+            yield f"del {owner}@{name}", lambda f, o=owner, n=name: f[o].attrs.__delitem__(n)
+    for content in ("coefficients", "model", "hybrid"):
+        yield f"content={content}", _set_attr("content", content)
+    for owner, names in owners.items():  # plausible values that contradict the datasets
+        if "basis_order" in names:
+            for name, v in [("scalar", True), ("channels", 1), ("channels", 4),
+                            ("basis_order", 4), ("basis_order", 1), ("basis_kind", "sh"),
+                            ("basis_kind", "harmonics"), ("storage", "dense")]:
+                yield f"{owner}@{name}={v!r}", _set_attr(name, v, owner)
+    for i, d in enumerate(datasets):
+        other = datasets[(i + 1) % len(datasets)]
+
+        def reshape(f, d=d):
+            x = f[d][()]
+            del f[d]
+            f.create_dataset(d, data=np.concatenate([x, x[..., :1]], axis=-1))
+            f[d].attrs["shape"] = [x.shape[-1] + 1]
+
+        def fill(value, d=d):
+            return lambda f: f[d].write_direct(np.full(f[d].shape, value, f[d].dtype))
+
+        def relink(link, d=d):
+            def change(f):
+                del f[d]
+                f[d] = link
+            return change
+
+        yield f"{d} as int", lambda f, d=d: _replace(d, data=f[d][()].astype(np.int64))(f)
+        yield f"{d} reshaped", reshape
+        yield f"del {d}", lambda f, d=d: f.__delitem__(d)
+        yield f"{d} -> soft link to {other}", relink(h5py.SoftLink(other))
+        yield f"{d} -> external link", relink(h5py.ExternalLink(str(path), d))
+        yield f"{d} compressed", lambda f, d=d: _replace(d, data=f[d][()], compression="gzip")(f)
+        yield f"{d} nan", fill(np.nan)
+        yield f"{d} huge", fill(1.7e308)
+
+
+_CONTENT = {"matrix": "coefficients", "model": "model", "hybrid": "hybrid"}
+
+
+def test_fuzz_damaged_files_never_load_wrong(tmp_path, rng):
+    # Variants of three valid files (a matrix, a model, a hybrid): bytes flipped at random
+    # offsets, truncations, and every attribute and dataset made wrong through h5py. A load
+    # either returns exactly what was saved (a flipped byte in unused space) or raises
+    # ValueError naming the file (OSError for I/O); never another exception, never other
+    # numbers. Only files written by save are fuzzed: schema 1 and 2 files have no metadata
+    # checksums, and the HDF5 library itself may crash on some damaged bytes of those.
+    fuzz = np.random.default_rng(14)
+    originals = {
+        "matrix": CoefficientMatrix.from_blocks(
+            basis.HemiZernike(3), _iso(basis.HemiZernike(3), rng, 3).blocks, "f_cos",
+            info={"source": "fuzz", "errors": np.arange(3.0)}),
+        "model": _lafortune(),
+        "hybrid": Hybrid(_ggx(), _iso(basis.HemiZernike(2), rng, 3, quantity="f"),
+                         {"l2": 0.5}),
+    }
+    outcomes: dict[str, dict[str, int]] = {}
+    wrong = []
+    variant = tmp_path / "variant.h5"
+
+    def attempt(group, label, obj, *, must_fail=False):
+        try:
+            back = load(variant)
+        except ValueError as exc:
+            outcome = "ValueError"
+            if repr(str(variant)) not in str(exc):
+                wrong.append(f"{label}: message without the file name: {exc}")
+        except OSError:
+            outcome = "OSError"
+        except Exception as exc:  # noqa: BLE001 - the point of the test
+            outcome = type(exc).__name__
+            wrong.append(f"{label}: {type(exc).__name__}: {exc}")
+        else:
+            outcome = "loaded"
+            if must_fail or not _finite(back) or not _same(back, obj):
+                wrong.append(f"{label}: loaded {back!r}")
+        counts = outcomes.setdefault(group, {})
+        counts[outcome] = counts.get(outcome, 0) + 1
+
+    t0 = time.perf_counter()
+    for name, obj in originals.items():
+        base = save(obj, tmp_path / f"{name}.h5")
+        data = base.read_bytes()
+        for i in range(50):
+            buf = bytearray(data)
+            for offset in fuzz.integers(0, len(buf), size=fuzz.integers(1, 9)):
+                buf[offset] ^= int(fuzz.integers(1, 256))
+            variant.write_bytes(bytes(buf))
+            attempt("flipped bytes", f"{name} flip {i}", obj)
+        for n in fuzz.integers(0, len(data), size=10):
+            variant.write_bytes(data[:n])
+            attempt("truncated", f"{name} cut at {n}", obj)
+        for label, change in _edits(base):
+            variant.write_bytes(data)
+            with h5py.File(variant, "r+") as f:
+                change(f)
+            # information-only and optional attributes may change or go; a change of
+            # anything else must be refused
+            harmless = ("@library" in label or "/provenance" in label
+                        or label == f"content={_CONTENT[name]}" or label.startswith("del ")
+                        and label.endswith("@sizes"))
+            attempt("h5py edits", f"{name} {label}", obj, must_fail=not harmless)
+    seconds = time.perf_counter() - t0
+    total = sum(sum(c.values()) for c in outcomes.values())
+    print(f"\nfuzz: {total} variants in {seconds:.1f} s: {outcomes}")
+    assert not wrong, "\n".join(wrong[:20])
+    assert total > 400
+    assert outcomes["flipped bytes"]["ValueError"] > 100
+    assert outcomes["h5py edits"]["ValueError"] > 200
