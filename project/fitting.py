@@ -132,10 +132,14 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Mapping
+from functools import lru_cache
+from types import SimpleNamespace
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.interpolate import BSpline, CubicSpline
 from scipy.optimize import least_squares, nnls
+from scipy.special import digamma, gammaln
 
 from basis.validation import nonneg_int
 
@@ -147,11 +151,14 @@ from .sampling import DEFAULT_WIDTHS, brdf_errors, peak_resolving_pairs
 __all__ = ["FAMILIES", "FittedModel", "fit_model"]
 
 #: The parametric families :func:`fit_model` knows.
-FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored")
+FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807")
 METRICS = ("l2", "log")
-#: Options of :func:`fit_model` and their defaults (``lobes`` is for "lafortune" only).
-DEFAULTS = {"n": 2 ** 14, "seed": 0, "restarts": 4, "lobes": 1, "max_nfev": None,
-            "error_n": 2 ** 16, "error_seed": None, "widths": DEFAULT_WIDTHS}
+#: Options of :func:`fit_model` and their defaults (``lobes`` is for "lafortune", default 1,
+#: and "dsbrdf", default 3; ``wavelength`` for "rr8807").
+DEFAULTS = {"n": 2 ** 14, "seed": 0, "restarts": 4, "lobes": None, "max_nfev": None,
+            "error_n": 2 ** 16, "error_seed": None, "widths": DEFAULT_WIDTHS,
+            "wavelength": None}
+_LOBES = {"lafortune": 1, "dsbrdf": 3}
 #: Options of :func:`fit_model` for family "factored": those of
 #: :func:`project.factored.fit_factored`, and the error pairs.
 FACTORED_OPTIONS = ("rank", "bins", "warp", "warp_d", "color", "samples", "diffuse", "seed",
@@ -177,6 +184,14 @@ class _Geometry:
         self.u = wi[:, 0] * wo[:, 0] + wi[:, 1] * wo[:, 1]
         self.v = wi[:, 2] * wo[:, 2]
         self.n = wi.shape[0]
+        # half vector: cos and sin^2 of theta_h; sines of theta_i, theta_o (rr8807, dsbrdf)
+        h = wi + wo
+        hn2 = np.sum(h * h, axis=1)
+        hn2 = np.where(hn2 > 0.0, hn2, 1.0)
+        self.ch = np.clip(h[:, 2] / np.sqrt(hn2), 0.0, 1.0)
+        self.sh2 = np.clip((h[:, 0] ** 2 + h[:, 1] ** 2) / hn2, 0.0, 1.0)
+        self.si = np.hypot(wi[:, 0], wi[:, 1])
+        self.so = np.hypot(wo[:, 0], wo[:, 1])
 
 
 class _Microfacet:
@@ -343,6 +358,371 @@ class _Lafortune:
                      np.ravel(np.stack([t, np.log(n)], axis=1))]
 
 
+# -- DSBRDF (seed 001) --------------------------------------------------------------------------
+
+#: Knots of the quadratic B-splines of kappa(theta_d) and gamma(theta_d): five uniform knots
+#: on [0, pi/2], clamped, so 6 coefficients per curve.
+DS_KNOTS = np.r_[0.0, 0.0, np.linspace(0.0, np.pi / 2, 5), np.pi / 2, np.pi / 2]
+DS_COEFFS = len(DS_KNOTS) - 3
+#: Bounds of the DSBRDF spline coefficients (kappa, gamma) and of the rr8807 (sigma, p, a).
+_KAPPA = (1e-6, 25.0)
+_GAMMA = (1e-3, 1e6)
+_SIGMA, _P, _A = (1e-4, 1.5), (0.2, 5.0), (1e-2, 50.0)
+#: Wavelengths (um) of the red, green and blue channels in Holzschuch & Pacanowski 2015.
+RGB_WAVELENGTHS = (0.645, 0.526, 0.444)
+
+
+def _ds_design(cd: NDArray) -> NDArray:
+    """(n, 6) quadratic B-spline basis of theta_d = arccos(c_d) on :data:`DS_KNOTS`."""
+    td = np.clip(np.arccos(np.clip(cd, 0.0, 1.0)), 0.0, np.pi / 2)
+    return BSpline.design_matrix(td, DS_KNOTS, 2).toarray()
+
+
+class _DSBRDF:
+    """x = per channel [log kappa (K x 6), log gamma (K x 6)], channel-major.
+
+    f_c = sum_k expm1(kappa_kc(theta_d) cos(theta_h)^gamma_kc(theta_d)), kappa and gamma
+    quadratic B-splines of theta_d. Channels share no parameter: fitted one at a time.
+    """
+
+    separable = True
+
+    def __init__(self, lobes: int, channels: int) -> None:
+        self.lobes = lobes
+        self.c = channels
+        self.per = 2 * lobes * DS_COEFFS  # reals per channel
+        self.p = channels * self.per
+        one = np.r_[np.full(lobes * DS_COEFFS, np.log(_KAPPA[0])),
+                    np.full(lobes * DS_COEFFS, np.log(_GAMMA[0]))]
+        top = np.r_[np.full(lobes * DS_COEFFS, np.log(_KAPPA[1])),
+                    np.full(lobes * DS_COEFFS, np.log(_GAMMA[1]))]
+        self.bounds = (np.tile(one, channels), np.tile(top, channels))
+
+    def channel_model(self) -> _DSBRDF:
+        return _DSBRDF(self.lobes, 1)
+
+    @staticmethod
+    def _basis(g: _Geometry) -> NDArray:
+        if not hasattr(g, "_ds_b"):
+            g._ds_b = _ds_design(g.cd)
+            g._ds_logt = np.log(np.where(g.ch > 0.0, g.ch, 1.0))  # 0 where cos theta_h = 0
+            g._ds_zero = g.ch <= 0.0
+        return g._ds_b
+
+    def _lobes(self, xc: NDArray, g: _Geometry, jac: bool = False):
+        """Per lobe of one channel: value, and with ``jac`` d/dlog kappa_j and d/dlog gamma_j."""
+        b = self._basis(g)
+        nk = self.lobes * DS_COEFFS
+        lk = np.exp(xc[:nk]).reshape(self.lobes, DS_COEFFS)
+        lg = np.exp(xc[nk:]).reshape(self.lobes, DS_COEFFS)
+        out = []
+        for j in range(self.lobes):
+            kap, gam = b @ lk[j], b @ lg[j]
+            tg = np.where(g._ds_zero, 0.0, np.exp(gam * g._ds_logt))  # cos^gamma theta_h
+            val = np.expm1(kap * tg)
+            if not jac:
+                out.append(val)
+                continue
+            e = val + 1.0
+            d_k = b * (lk[j] * (tg * e)[:, None])
+            d_g = b * (lg[j] * (kap * tg * g._ds_logt * e)[:, None])
+            out.append((val, d_k, d_g))
+        return out
+
+    def value(self, x: NDArray, g: _Geometry, jac: bool = False):
+        f = np.zeros((g.n, self.c))
+        df = np.zeros((g.n, self.c, self.p)) if jac else None
+        nk = self.lobes * DS_COEFFS
+        for ch in range(self.c):
+            xc = x[ch * self.per:(ch + 1) * self.per]
+            for j, lobe in enumerate(self._lobes(xc, g, jac)):
+                if not jac:
+                    f[:, ch] += lobe
+                    continue
+                val, d_k, d_g = lobe
+                f[:, ch] += val
+                o = ch * self.per + j * DS_COEFFS
+                df[:, ch, o:o + DS_COEFFS] = d_k
+                df[:, ch, o + nk:o + nk + DS_COEFFS] = d_g
+        return (f, df) if jac else f
+
+    def start(self, g: _Geometry, f: NDArray, row: NDArray, k: int,
+              rng: np.random.Generator) -> NDArray:
+        """Return a start of constant (kappa, gamma) curves.
+
+        Restart 0 as Nishino & Lombardi initialise (the best single lobe on a grid, then
+        kappa and gamma halved for each further lobe), the others at random.
+        """
+        x = []
+        logt = np.log(np.where(g.ch > 0.0, g.ch, 1.0))
+        for ch in range(self.c):
+            if k == 0:
+                best = None
+                kap = np.geomspace(1e-3, 12.0, 16)
+                for gam in np.geomspace(1e-2, 1e5, 22):
+                    tg = np.where(g.ch > 0.0, np.exp(gam * logt), 0.0)
+                    vals = np.expm1(kap[:, None] * tg[None, :])
+                    cost = np.sum(((vals - f[:, ch]) * row[:, ch]) ** 2, axis=1)
+                    i = int(np.argmin(cost))
+                    if best is None or cost[i] < best[0]:
+                        best = (cost[i], kap[i], gam)
+                _, k0, g0 = best
+                kaps = k0 / 2.0 ** np.arange(self.lobes)
+                gams = g0 / 2.0 ** np.arange(self.lobes)
+            else:
+                kaps = np.exp(rng.uniform(np.log(1e-2), np.log(10.0), self.lobes))
+                gams = np.exp(rng.uniform(np.log(0.03), np.log(3e4), self.lobes))
+            x.append(np.r_[np.repeat(np.log(kaps), DS_COEFFS), np.repeat(np.log(gams),
+                                                                         DS_COEFFS)])
+        lo, hi = self.bounds
+        span = hi - lo
+        return np.clip(np.concatenate(x), lo + 1e-6 * span, hi - 1e-6 * span)
+
+    def _order(self, x: NDArray) -> list[NDArray]:
+        """Per channel, the lobes sorted by decreasing mean kappa (as the paper sorts them)."""
+        nk = self.lobes * DS_COEFFS
+        return [np.argsort(-x[ch * self.per:ch * self.per + nk].reshape(
+            self.lobes, DS_COEFFS).mean(axis=1), kind="stable") for ch in range(self.c)]
+
+    def _split(self, v: NDArray, x: NDArray) -> tuple[NDArray, NDArray]:
+        nk = self.lobes * DS_COEFFS
+        kap = np.empty((self.lobes, DS_COEFFS, self.c))
+        gam = np.empty_like(kap)
+        for ch, order in enumerate(self._order(x)):
+            vc = v[ch * self.per:(ch + 1) * self.per]
+            kap[:, :, ch] = vc[:nk].reshape(self.lobes, DS_COEFFS)[order]
+            gam[:, :, ch] = vc[nk:].reshape(self.lobes, DS_COEFFS)[order]
+        return kap, gam
+
+    def params(self, x: NDArray) -> dict[str, NDArray]:
+        kap, gam = self._split(np.exp(x), x)
+        return {"kappa": kap, "gamma": gam}
+
+    def natural_stderr(self, x: NDArray, cov: NDArray) -> dict[str, NDArray]:
+        kap, gam = self._split(np.exp(x) * _sqrt_diag(cov), x)
+        return {"kappa": kap, "gamma": gam}
+
+    def vector(self, params: dict[str, NDArray]) -> NDArray:
+        with np.errstate(divide="ignore"):  # a coefficient 0 is exp(-inf): a zero lobe
+            lk, lg = np.log(params["kappa"]), np.log(params["gamma"])
+        return np.concatenate([np.r_[lk[:, :, ch].ravel(), lg[:, :, ch].ravel()]
+                               for ch in range(self.c)])
+
+
+# -- Holzschuch & Pacanowski RR-8807 (seed 004) ---------------------------------------------------
+
+_EPD_NODES, _EPD_TABLE, _EPD_M_LO, _EPD_TAIL = 128, 384, 1e-4, 40.0
+
+
+def _epd_lambda_direct(m: NDArray, p: float, nodes: int = _EPD_NODES,
+                       dp: bool = False) -> NDArray:
+    """Smith Lambda of the slope distribution P22(x) ~ exp(-(x / sigma^2)^p), m = cot / sigma.
+
+    Lambda(m) = p / (pi Gamma(1/p)) J(m) / m with J(m) = int_{s > m} (s - m) g(s) ds and
+    g(s) = int_R exp(-(s^2 + t^2)^p) dt; in polar coordinates r = m cosh v this is
+    J = 2 m^3 int_0^inf exp(-r^(2p)) cosh v sinh v (sinh v - arctan sinh v) dv, smooth and
+    fast-decaying: the trapezoidal rule to r^(2p) = m^(2p) + 40 (128 nodes: 1e-13
+    relative). With ``dp``, also dlog Lambda / dlog p at fixed m.
+    """
+    m = np.asarray(m, dtype=np.float64)
+    rmax = (m ** (2.0 * p) + 40.0) ** (0.5 / p)  # relative truncation e^-40
+    vmax = np.arccosh(rmax / m)
+    v = vmax[:, None] * np.linspace(0.0, 1.0, nodes)[None, :]
+    ch, sh = np.cosh(v), np.sinh(v)
+    # sinh v - arctan(sinh v) by its series where the difference cancels
+    s2 = sh * sh
+    diff = np.where(sh < 1e-2, sh * s2 * (1.0 / 3.0 - s2 / 5.0 + s2 * s2 / 7.0),
+                    sh - np.arctan(sh))
+    r2p = (m[:, None] * ch) ** (2.0 * p)
+    y = np.exp(-r2p) * ch * sh * diff
+
+    def trap(z: NDArray) -> NDArray:
+        return vmax / (nodes - 1) * (z.sum(axis=1) - 0.5 * (z[:, 0] + z[:, -1]))
+
+    j = 2.0 * m ** 3 * trap(y)
+    lam = float(np.exp(np.log(p) - np.log(np.pi) - gammaln(1.0 / p))) * j / m
+    if not dp:
+        return lam
+    # d/dp exp(-r^(2p)) = -exp(-r^(2p)) r^(2p) log r^2; the limit moves by O(e^-40)
+    jp = -2.0 * m ** 3 * trap(y * r2p * np.log(m[:, None] * ch) * 2.0)
+    return lam, 1.0 + digamma(1.0 / p) / p + p * jp / j
+
+
+@lru_cache(maxsize=32)
+def _epd_table(p: float):
+    """Tabulate Lambda(m, p) at one p: cubic splines in xi = 2p log m + m^(2p).
+
+    The splines are of log psi, psi = m Lambda(m), and of dlog psi / dlog p, on
+    [1e-4, m_hi]; below, the asymptote A(p) - m / 2. log psi is smooth and falls like
+    -m^(2p), and xi is close to log m^(2p) for small m and to m^(2p) for large m: splined in
+    xi, Lambda keeps ~1e-7 relative accuracy over the 17 orders of magnitude it spans
+    (measured against the Beckmann closed form at p = 1).
+    """
+    m_hi = _EPD_TAIL ** (0.5 / p)  # Lambda < e^-40 beyond
+    xi = np.linspace(_epd_xi(_EPD_M_LO, p), _epd_xi(m_hi, p), _EPD_TABLE)
+    ell = np.linspace(np.log(_EPD_M_LO), np.log(m_hi), 4096)
+    lm = np.interp(xi, _epd_xi(np.exp(ell), p), ell)
+    for _ in range(3):  # Newton on xi(m) = xi, dxi / dlog m = 2p (1 + m^(2p))
+        mm = np.exp(lm)
+        lm -= (_epd_xi(mm, p) - xi) / (2.0 * p * (1.0 + mm ** (2.0 * p)))
+    m = np.exp(lm)
+    lam, dlp = _epd_lambda_direct(m, p, dp=True)
+    x = _epd_xi(m, p)
+    # m Lambda -> A(p) - m / 2 as m -> 0, A = Gamma(3 / (2p)) / (pi Gamma(1/p))
+    a = float(np.exp(gammaln(1.5 / p) - gammaln(1.0 / p)) / np.pi)
+    da = float(digamma(1.0 / p) / p - 1.5 * digamma(1.5 / p) / p)  # dlog A / dlog p
+    return CubicSpline(x, np.log(m * lam)), CubicSpline(x, dlp), a, da, float(m_hi)
+
+
+def _epd_xi(m: NDArray | float, p: float) -> NDArray:
+    return 2.0 * p * np.log(m) + m ** (2.0 * p)
+
+
+def _epd_lambda(m: NDArray, p: float, deriv: bool = False):
+    """Return Lambda(m, p) for m = 1 / (sigma tan theta) >= 0 (inf at the normal).
+
+    With ``deriv``, also dLambda / dlog m and dLambda / dlog p.
+    """
+    spline, dspline, a, da, m_hi = _epd_table(float(p))
+    m = np.asarray(m, dtype=np.float64)
+    lo, hi = m < _EPD_M_LO, m > m_hi
+    mid = ~(lo | hi)
+    psi = np.zeros_like(m)
+    mm = m[mid]
+    xi = _epd_xi(mm, p)
+    psi[mid] = np.exp(spline(xi))
+    psi[lo] = a - 0.5 * m[lo]
+    safe = np.where(m > 0.0, m, 1.0)
+    lam = np.where(m > 0.0, psi / safe, np.inf)
+    if not deriv:
+        return lam
+    dpsi = np.zeros_like(m)  # dpsi / dlog m
+    dpsi[mid] = psi[mid] * spline(xi, 1) * 2.0 * p * (1.0 + mm ** (2.0 * p))
+    dpsi[lo] = -0.5 * m[lo]
+    dlp = np.zeros_like(m)  # dpsi / dlog p
+    dlp[mid] = psi[mid] * dspline(xi)
+    dlp[lo] = a * da
+    return (lam, np.where(m > 0.0, (dpsi - psi) / safe, -np.inf),
+            np.where(m > 0.0, dlp / safe, np.inf))
+
+
+class _RR8807:
+    """x = [kd (C), ks (C), kw (C), f0 (C), log sigma, log p, log a]."""
+
+    separable = False
+
+    def __init__(self, channels: int, wavelength: NDArray) -> None:
+        self.c = channels
+        self.lam = np.asarray(wavelength, dtype=np.float64).reshape(channels)
+        self.p = 4 * channels + 3
+        self.k = 2
+        c = channels
+        lo = np.r_[np.zeros(3 * c), np.full(c, 0.02), np.log([_SIGMA[0], _P[0], _A[0]])]
+        hi = np.r_[np.ones(c), np.full(c, 5.0), np.ones(c), np.full(c, 1.2),
+                   np.log([_SIGMA[1], _P[1], _A[1]])]
+        self.bounds = (lo, hi)
+        self.nl_bounds = (np.r_[0.02, lo[-3:]], np.r_[1.2, hi[-3:]])
+
+    def _terms(self, sigma: float, p: float, a: float, g: _Geometry, jac: bool = False):
+        """G D / (4 c_i c_o), G S / (lambda^4 E) per channel, and log-derivatives."""
+        ci, co = g.ci, g.co
+        up = (ci > 0.0) & (co > 0.0) & (g.ch > 0.0)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mi = np.where(up, ci / (sigma * g.si), 0.0)
+            mo = np.where(up, co / (sigma * g.so), 0.0)
+            res = [_epd_lambda(mi, p, jac), _epd_lambda(mo, p, jac)]
+            lam_i, lam_o = (r[0] for r in res) if jac else res
+            g1i, g1o = 1.0 / (1.0 + lam_i), 1.0 / (1.0 + lam_o)
+            gg = np.where(up, g1i * g1o, 0.0)
+            # D = beta exp(-(tan^2 theta_h / sigma^2)^p) / cos^4 theta_h, Eq. 26
+            x = np.where(up, g.sh2 / np.where(up, g.ch, 1.0) ** 2, 0.0) / sigma ** 2
+            y = x ** p
+            logb = np.log(p) - np.log(np.pi) - 2.0 * np.log(sigma) - gammaln(1.0 / p)
+            d = np.where(up, np.exp(logb - y) / np.where(up, g.ch, 1.0) ** 4, 0.0)
+            spec = np.where(up, gg * d / (4.0 * np.where(up, ci * co, 1.0)), 0.0)
+        # diffraction: f = 2 sin theta_h cos theta_d / lambda (Eq. 11), S = (1 + f^2/a^2)^-2
+        z = (2.0 * np.sqrt(g.sh2) * g.cd)[:, None] ** 2 / (self.lam * a) ** 2
+        inv_e = (1.0 + 1.0 / (a * self.lam) ** 2) / np.pi  # 1 / E_{a,lambda}, corrected
+        diff = gg[:, None] * inv_e / (1.0 + z) ** 2 / self.lam ** 4
+        if not jac:
+            return spec, diff
+        (_, dli, dpi), (_, dlo, dpo) = res
+        # d log G / d log sigma: m = 1 / (sigma tan theta), d log m / d log sigma = -1
+        with np.errstate(invalid="ignore"):
+            dg_s = np.where(up, g1i * dli + g1o * dlo, 0.0)
+            dg_p = np.where(up, -(g1i * dpi + g1o * dpo), 0.0)
+            dd_s = -2.0 + 2.0 * p * y
+            dd_p = 1.0 + digamma(1.0 / p) / p - np.where(y > 0.0, p * y * np.log(
+                np.where(y > 0.0, x, 1.0)), 0.0)
+        dspec_s = np.where(spec > 0.0, spec * (dd_s + dg_s), 0.0)
+        dspec_p = np.where(spec > 0.0, spec * (dd_p + dg_p), 0.0)
+        ddiff_s = diff * dg_s[:, None]
+        ddiff_p = diff * dg_p[:, None]
+        ddiff_a = diff * (4.0 * z / (1.0 + z) - 2.0 / (1.0 + (a * self.lam) ** 2))
+        return spec, diff, (dspec_s, dspec_p, ddiff_s, ddiff_p, ddiff_a)
+
+    def value(self, x: NDArray, g: _Geometry, jac: bool = False):
+        c = self.c
+        kd, ks, kw, f0 = x[:c], x[c:2 * c], x[2 * c:3 * c], x[3 * c:4 * c]
+        sigma, p, a = np.exp(x[4 * c:])
+        x5 = ((1.0 - g.cd) ** 5)[:, None]
+        fr = f0 + (1.0 - f0) * x5
+        out = self._terms(sigma, p, a, g, jac)
+        spec, diff = out[0], out[1]
+        f = kd / np.pi + ks * fr * spec[:, None] + kw * diff
+        if not jac:
+            return f
+        dspec_s, dspec_p, ddiff_s, ddiff_p, ddiff_a = out[2]
+        df = np.zeros((g.n, c, self.p))
+        idx = np.arange(c)
+        df[:, idx, idx] = 1.0 / np.pi
+        df[:, idx, c + idx] = fr * spec[:, None]
+        df[:, idx, 2 * c + idx] = diff
+        df[:, idx, 3 * c + idx] = ks * (1.0 - x5) * spec[:, None]
+        df[:, :, 4 * c] = ks * fr * dspec_s[:, None] + kw * ddiff_s
+        df[:, :, 4 * c + 1] = ks * fr * dspec_p[:, None] + kw * ddiff_p
+        df[:, :, 4 * c + 2] = kw * ddiff_a
+        return f, df
+
+    def columns(self, xnl: NDArray, g: _Geometry) -> NDArray:
+        """(n, C, 3) functions multiplying (kd, ks, kw) at fixed (f0, log sigma, log p, log a)."""
+        spec, diff = self._terms(*np.exp(xnl[1:]), g)
+        fr = xnl[0] + (1.0 - xnl[0]) * (1.0 - g.cd) ** 5
+        return np.stack([np.full((g.n, self.c), 1.0 / np.pi),
+                         np.broadcast_to((fr * spec)[:, None], (g.n, self.c)), diff], axis=2)
+
+    def assemble(self, lin: NDArray, xnl: NDArray) -> NDArray:
+        return np.r_[lin[:, 0], lin[:, 1], lin[:, 2], np.full(self.c, xnl[0]), xnl[1:]]
+
+    def nonlinear_grid(self) -> list[NDArray]:
+        return [np.r_[0.05, np.log([s, p, a])] for s in (0.005, 0.01, 0.03, 0.1, 0.3)
+                for p in (0.5, 1.0) for a in (0.3, 3.0)]
+
+    def nonlinear_random(self, rng: np.random.Generator) -> NDArray:
+        return np.r_[rng.uniform(0.02, 1.0), rng.uniform(np.log(0.003), np.log(0.8)),
+                     rng.uniform(np.log(0.3), np.log(2.0)), rng.uniform(np.log(0.1),
+                                                                         np.log(10.0))]
+
+    def params(self, x: NDArray) -> dict[str, NDArray]:
+        c = self.c
+        sigma, p, a = np.exp(x[4 * c:])
+        return {"kd": x[:c].copy(), "ks": x[c:2 * c].copy(), "kw": x[2 * c:3 * c].copy(),
+                "f0": x[3 * c:4 * c].copy(), "sigma": np.array(sigma), "p": np.array(p),
+                "a": np.array(a), "wavelength": self.lam.copy()}
+
+    def natural_stderr(self, x: NDArray, cov: NDArray) -> dict[str, NDArray]:
+        c = self.c
+        se = _sqrt_diag(cov)
+        nat = np.exp(x[4 * c:]) * se[4 * c:]
+        return {"kd": se[:c].copy(), "ks": se[c:2 * c].copy(), "kw": se[2 * c:3 * c].copy(),
+                "f0": se[3 * c:4 * c].copy(), "sigma": np.array(nat[0]),
+                "p": np.array(nat[1]), "a": np.array(nat[2]), "wavelength": np.zeros(c)}
+
+    def vector(self, params: dict[str, NDArray]) -> NDArray:
+        return np.r_[params["kd"], params["ks"], params["kw"], params["f0"],
+                     np.log([float(params["sigma"]), float(params["p"]), float(params["a"])])]
+
+
 def _check_family(family: object) -> str:
     if not isinstance(family, str) or family not in FAMILIES:
         raise ValueError(f"family must be one of {', '.join(map(repr, FAMILIES))}, got "
@@ -350,11 +730,35 @@ def _check_family(family: object) -> str:
     return family
 
 
-def _family(family: object, channels: int, lobes: int = 1) -> _Microfacet | _Lafortune:
+def _family(family: object, channels: int, lobes: int = 1,
+            wavelength: NDArray | None = None):
     _check_family(family)
     if family == "lafortune":
         return _Lafortune(lobes, channels)
+    if family == "dsbrdf":
+        return _DSBRDF(lobes, channels)
+    if family == "rr8807":
+        return _RR8807(channels, _wavelengths(wavelength, channels))
     return _Microfacet(family.split("+")[1], channels)
+
+
+def _wavelengths(wavelength: object, channels: int) -> NDArray:
+    """Return the wavelengths (um) of rr8807's channels: given, or the report's for 3 or 1."""
+    if wavelength is None:
+        if channels == 3:
+            return np.array(RGB_WAVELENGTHS)
+        if channels == 1:
+            return np.array(RGB_WAVELENGTHS[1:2])
+        raise ValueError(f"family 'rr8807' needs the option wavelength (um, one per channel) "
+                         f"for {channels} channels (defaults exist for 3, RGB, and 1)")
+    try:
+        lam = np.array(wavelength, dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        raise TypeError(f"wavelength must be numbers (um), got {wavelength!r}") from None
+    if lam.size != channels or not np.all(np.isfinite(lam)) or np.any(lam <= 0.0):
+        raise ValueError(f"wavelength must hold {channels} finite values > 0 (um, one per "
+                         f"channel), got {wavelength!r}")
+    return lam
 
 
 # -- the fitted model -------------------------------------------------------------------------
@@ -411,27 +815,42 @@ class FittedModel(BRDF):
         if _check_family(family) == "factored":
             self._init_factored(params, info)
             return
-        probe = _family(family, 1)
-        kd = _param(params, "kd", 1)
-        c = kd.size
-        if isinstance(probe, _Lafortune):
+        if family == "dsbrdf":
+            kappa = _param(params, "kappa", 3, low=0.0)
+            if kappa.ndim != 3 or kappa.shape[1] != DS_COEFFS or 0 in kappa.shape:
+                raise ValueError(f"params['kappa'] must have shape (lobes, {DS_COEFFS}, "
+                                 f"channels), got {kappa.shape}")
+            c = kappa.shape[2]
+            model = _DSBRDF(kappa.shape[0], c)
+            shapes = {"kappa": kappa.shape, "gamma": kappa.shape}
+        else:
+            c = _param(params, "kd", 1).size
+        if family == "rr8807":
+            model = _RR8807(c, _wavelengths(params.get("wavelength"), c))
+            shapes = {"kd": (c,), "ks": (c,), "kw": (c,), "f0": (c,), "sigma": (), "p": (),
+                      "a": (), "wavelength": (c,)}
+        elif family == "lafortune":
             n = _param(params, "n", 1, low=0.0)
             model = _Lafortune(n.size, c)
             shapes = {"kd": (c,), "rho": (n.size, c), "cx": (n.size,), "cz": (n.size,),
                       "n": (n.size,)}
-        else:
-            model = _Microfacet(probe.distribution, c)
+        elif family != "dsbrdf":
+            model = _Microfacet(family.split("+")[1], c)
             shapes = {"kd": (c,), "ks": (c,), "alpha": (), "f0": ()}
+        if family == "rr8807" and "wavelength" not in params:  # optional: the default
+            params = {**params, "wavelength": model.lam}
         if set(params) != set(shapes):
             raise ValueError(f"params of family {family!r} must be exactly "
                              f"{sorted(shapes)}, got {sorted(params)}")
-        lows = {"kd": 0.0, "ks": 0.0, "rho": 0.0, "n": 0.0, "f0": 0.0}
+        lows = {"kd": 0.0, "ks": 0.0, "rho": 0.0, "n": 0.0, "f0": 0.0, "kw": 0.0,
+                "gamma": 0.0, "kappa": 0.0}
         p = {}
         for name, shape in shapes.items():
             v = _param(params, name, len(shape), low=lows.get(name))
             if v.shape != shape:
                 raise ValueError(f"params[{name!r}] must have shape {shape} (channels "
-                                 f"{c} from kd), got {v.shape}")
+                                 f"{c} from {'kappa' if family == 'dsbrdf' else 'kd'}), "
+                                 f"got {v.shape}")
             v.flags.writeable = False
             p[name] = v
         if "alpha" in p and not (p["alpha"] > 0.0 and p["f0"] <= 1.0):
@@ -440,6 +859,11 @@ class FittedModel(BRDF):
         if "cx" in p and not (np.all(p["cz"] == 1.0) and np.all(p["cx"] < 0.0)):
             raise ValueError(f"cz must be 1 (the scale of C is in rho) and cx < 0 (forward "
                              f"lobes) for every lobe, got cx={p['cx']}, cz={p['cz']}")
+        if "sigma" in p and not (p["sigma"] > 0.0 and _P[0] <= p["p"] <= _P[1]
+                                 and p["a"] > 0.0):
+            raise ValueError(f"sigma and a must be > 0 and p in [{_P[0]}, {_P[1]}] (where the "
+                             f"shadowing is tabulated), got sigma={float(p['sigma'])}, "
+                             f"p={float(p['p'])}, a={float(p['a'])}")
         self.family = family
         self.params = p
         self.channels = c
@@ -587,16 +1011,13 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
     samples = peak_resolving_pairs(opts["n"], seed=opts["seed"], widths=opts["widths"])
     f = _target(brdf, samples)
     c = f.shape[1]
-    model = _family(family, c, opts["lobes"])
+    model = _family(family, c, opts["lobes"], opts["wavelength"])
     geom = _Geometry(samples.wi, samples.wo)
-    res_fn, jac_fn, row = _objective(model, geom, f, samples.weights, metric)
     lo, hi = model.bounds
     runs = []
     for k in range(opts["restarts"]):
         rng = np.random.default_rng(np.random.SeedSequence([opts["seed"], k]))
-        x0 = _start(model, geom, f, row, k, rng)
-        runs.append(least_squares(res_fn, x0, jac=jac_fn, bounds=(lo, hi), method="trf",
-                                  x_scale="jac", max_nfev=opts["max_nfev"]))
+        runs.append(_solve(model, geom, f, samples.weights, metric, k, rng, opts["max_nfev"]))
     costs = [float(r.cost) for r in runs]
     best = int(np.argmin(costs))
     run = runs[best]
@@ -667,10 +1088,15 @@ def _options(family: str, options: dict) -> dict:
     if unknown:
         raise TypeError(f"fit_model() got unknown option(s) {', '.join(map(repr, unknown))}; "
                         f"the options are {', '.join(map(repr, DEFAULTS))}")
-    if "lobes" in options and family != "lafortune":
-        raise ValueError(f"option 'lobes' applies to family 'lafortune' only, got family "
+    if "lobes" in options and family not in _LOBES:
+        raise ValueError(f"option 'lobes' applies to families 'lafortune' and 'dsbrdf' only, "
+                         f"got family {family!r}")
+    if "wavelength" in options and family != "rr8807":
+        raise ValueError(f"option 'wavelength' applies to family 'rr8807' only, got family "
                          f"{family!r}")
     o = {**DEFAULTS, **options}
+    if o["lobes"] is None:
+        o["lobes"] = _LOBES.get(family, 1)
     o["n"] = nonneg_int(o["n"], "n")
     o["seed"] = nonneg_int(o["seed"], "seed")
     o["restarts"] = nonneg_int(o["restarts"], "restarts", maximum=1000)
@@ -715,6 +1141,40 @@ def _target(brdf: object, samples) -> NDArray[np.float64]:
     return f
 
 
+def _solve(model, g: _Geometry, f: NDArray, w: NDArray, metric: str, k: int,
+           rng: np.random.Generator, max_nfev: int | None):
+    """One restart: least_squares from start k, channel by channel for a separable family.
+
+    A separable family (no parameter shared between channels) has a cost that is a sum of
+    per-channel costs; solving each channel alone reaches the same optimum with a Jacobian C
+    times narrower (the solves cost ~C^2 less). The result is put together as if one solve:
+    x, fun and a block Jacobian in the joint layout, the summed cost and evaluations, and the
+    worst status.
+    """
+    if not getattr(model, "separable", False):
+        res_fn, jac_fn, row = _objective(model, g, f, w, metric)
+        x0 = _start(model, g, f, row, k, rng)
+        return least_squares(res_fn, x0, jac=jac_fn, bounds=model.bounds, method="trf",
+                             x_scale="jac", max_nfev=max_nfev)
+    sub = model.channel_model()
+    c, per = f.shape[1], sub.p
+    runs = []
+    for ch in range(c):
+        res_fn, jac_fn, row = _objective(sub, g, f[:, ch:ch + 1], w, metric)
+        x0 = sub.start(g, f[:, ch:ch + 1], row, k, rng)
+        runs.append(least_squares(res_fn, x0, jac=jac_fn, bounds=sub.bounds, method="trf",
+                                  x_scale="jac", max_nfev=max_nfev))
+    jac = np.zeros((g.n, c, model.p))
+    for ch, r in enumerate(runs):
+        jac[:, ch, ch * per:(ch + 1) * per] = r.jac
+    statuses = [int(r.status) for r in runs]
+    return SimpleNamespace(
+        x=np.concatenate([r.x for r in runs]), cost=float(sum(r.cost for r in runs)),
+        fun=np.stack([r.fun for r in runs], axis=1).ravel(), jac=jac.reshape(g.n * c, -1),
+        status=min(statuses) if min(statuses) <= 0 else max(statuses),
+        nfev=int(sum(r.nfev for r in runs)), njev=int(sum(r.njev or 0 for r in runs)))
+
+
 def _objective(model, g: _Geometry, f: NDArray, w: NDArray, metric: str):
     """Residual and Jacobian functions of the metric, and the row weights for NNLS starts."""
     n, c = f.shape
@@ -755,22 +1215,24 @@ def _start(model, g: _Geometry, f: NDArray, row: NDArray, k: int,
     rho) from non-negative least squares per channel.
     """
     lo, hi = model.bounds
-    nl_lo, nl_hi = lo[-2 * model.k:], hi[-2 * model.k:]  # 2 nonlinear reals per lobe
+    # the trailing nonlinear reals (2 per lobe), or the family's own start vector
+    nl_lo, nl_hi = getattr(model, "nl_bounds", (lo[-2 * model.k:], hi[-2 * model.k:]))
     candidates = model.nonlinear_grid() if k == 0 else [model.nonlinear_random(rng)]
     best = None
     for xnl in candidates:
         xnl = np.clip(xnl, nl_lo, nl_hi)
-        cols = model.columns(xnl, g)
-        lin = np.empty((f.shape[1], cols.shape[1]))
+        cols = model.columns(xnl, g)  # (n, m) shared, or (n, C, m) per channel
+        lin = np.empty((f.shape[1], cols.shape[-1]))
         cost = 0.0
         for ch in range(f.shape[1]):
-            a = cols * row[:, ch:ch + 1]
+            a = (cols if cols.ndim == 2 else cols[:, ch]) * row[:, ch:ch + 1]
             lin[ch], rnorm = nnls(a, f[:, ch] * row[:, ch], maxiter=50 * a.shape[1])
             cost += rnorm ** 2
         if best is None or cost < best[0]:
             best = (cost, xnl, lin)
     _, xnl, lin = best
-    x = np.r_[lin[:, 0], lin[:, 1:].T.ravel(), xnl]
+    x = model.assemble(lin, xnl) if hasattr(model, "assemble") else \
+        np.r_[lin[:, 0], lin[:, 1:].T.ravel(), xnl]
     # strictly inside the bounds (the trust-region reflective method needs it)
     span = hi - lo
     return np.clip(x, lo + 1e-6 * span, hi - 1e-6 * span)
