@@ -294,6 +294,12 @@ def _demo(args: argparse.Namespace) -> int:
 
 
 def _info(args: argparse.Namespace) -> int:
+    if args.file is not None:
+        from .info import run
+
+        return run(args.file, as_json=args.json)
+    if args.json:
+        raise UserError("--json describes a FILE: give one (e.g. scatmodes info phong.h5 --json)")
     import numba
     import numpy as np
     import pyshtools
@@ -690,9 +696,19 @@ def _parser() -> argparse.ArgumentParser:
     _add_progress(st)
     st.set_defaults(func=_study)
 
-    i = sub.add_parser("info", formatter_class=fmt, help="versions, threads, limits, models",
-                       description="Versions, threads, basis limits, basis kinds and models.",
-                       epilog="example:\n  scatmodes info")
+    i = sub.add_parser("info", formatter_class=fmt,
+                       help="versions, threads, limits, models; or what FILE holds",
+                       description="Without FILE: versions, threads, basis limits, basis kinds "
+                                   "and models. With FILE: what a saved representation holds "
+                                   "(basis, order, quantity, channels, sizes, errors and "
+                                   "provenance; family and parameters of a fitted model or a "
+                                   "hybrid's lobe) or the progress of a simulate checkpoint. "
+                                   "The file is checked in full: a damaged one is an error.",
+                       epilog="examples:\n  scatmodes info\n  scatmodes info phong.h5\n"
+                              "  scatmodes info run.ckpt --json")
+    i.add_argument("file", nargs="?", metavar="FILE", help="an .h5 file written by scatmodes "
+                   "(project, fit, convert, simulate, compress.save) or a --checkpoint file")
+    i.add_argument("--json", action="store_true", help="print FILE's description as JSON")
     i.set_defaults(func=_info)
     return p
 

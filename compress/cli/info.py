@@ -1,0 +1,302 @@
+"""``scatmodes info FILE``: what a saved representation or a simulation checkpoint holds.
+
+:func:`describe` returns a JSON-able dict, :func:`to_text` its human-readable form, and
+:func:`run` prints one of them. A representation (a file of :func:`compress.save`: a
+coefficient matrix, a fitted model or a hybrid) is read in full with :func:`compress.load`,
+so every check of :mod:`compress.store` applies and a damaged file is reported, not
+described. A checkpoint of :func:`project.microgeometry.simulate` (``--checkpoint``) is
+described from its attributes and scalar datasets; ``simulate --resume`` verifies it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["describe", "run", "to_text"]
+
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_CHECKPOINT = "scatmodes-microgeometry-checkpoint-"
+
+
+class _Damaged(ValueError):
+    """A complete message about a damaged checkpoint."""
+
+
+def run(path: str | os.PathLike, *, as_json: bool = False) -> int:
+    """Print the description of ``path`` (text, or JSON with ``as_json``); return 0.
+
+    Raises
+    ------
+    FileNotFoundError, IsADirectoryError, PermissionError
+        The file is missing or cannot be read.
+    ValueError
+        It is not a scatmodes file or is damaged (the message says how).
+    """
+    d = describe(path)
+    print(json.dumps(d, indent=2) if as_json else to_text(d))
+    return 0
+
+
+def describe(path: str | os.PathLike) -> dict[str, Any]:
+    """Describe a file of :func:`compress.save` or a simulation checkpoint.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    dict
+        JSON-able. Always ``path``, ``kind`` (``"representation"`` or ``"checkpoint"``) and
+        ``bytes_on_disk``. A representation adds ``content`` (``"coefficients"``, ``"model"``
+        or ``"hybrid"``), ``schema_version``, ``library``, ``dtype``, ``stored_bytes`` (the
+        numbers held, at the stored precision) and the description of the object: for a
+        matrix ``basis``, ``basis_kind``, ``order``, ``size``, ``quantity``, ``channels``,
+        ``scalar``, ``isotropic``, ``unique_coefficients``, ``info``; for a model
+        ``family``, ``nparams``, ``channels``, ``params`` (name to shape), ``info``; for a
+        hybrid ``lobe`` and ``residual`` (those two) and ``info``. A checkpoint adds
+        ``format``, ``directions_done``, ``rays``, ``chunks``, ``seconds``, ``basis``,
+        ``matrix_size``, ``surface``, ``incident``, ``targets``, ``chunk``, ``seeds``,
+        ``energy`` (reflected, absorbed, lost) and ``sha256`` (whether the checkpoint carries
+        a digest of its content).
+    """
+    p = Path(os.fspath(path))
+    if not p.exists():
+        raise FileNotFoundError(f"file {str(p)!r} does not exist")
+    if p.is_dir():
+        raise IsADirectoryError(f"FILE must be a file, got the directory {str(p)!r}")
+    with open(p, "rb") as fh:
+        head = fh.read(8)
+    base = {"path": str(p), "bytes_on_disk": p.stat().st_size}
+    if head == _HDF5_SIGNATURE:
+        fmt = _format(p)
+        if isinstance(fmt, str) and fmt.startswith(_CHECKPOINT):
+            return {**base, "kind": "checkpoint", **_checkpoint(p, fmt)}
+    from compress import load
+
+    obj = load(p)  # every check of compress.store; raises ValueError on anything else
+    return {**base, "kind": "representation", **_header(p), **_object(obj)}
+
+
+# -- representations --------------------------------------------------------------------------
+def _header(p: Path) -> dict[str, Any]:
+    """Header attributes and stored bytes of a file that compress.load has just accepted."""
+    import h5py
+
+    def text(v: Any) -> Any:
+        return v.decode(errors="replace") if isinstance(v, bytes) else v
+
+    stored = 0
+    with h5py.File(p, "r") as f:
+        a = f.attrs
+        version = int(a["schema_version"])
+        out = {"schema_version": version,
+               "content": text(a.get("content", "coefficients")),
+               "library": text(a.get("library", "unknown")),
+               "dtype": text(a.get("dtype", "float64"))}
+
+        def add(_name: str, obj: Any) -> None:
+            nonlocal stored
+            if isinstance(obj, h5py.Dataset):
+                stored += obj.size * obj.dtype.itemsize
+
+        f.visititems(add)
+    out["stored_bytes"] = stored
+    return out
+
+
+def _object(obj: Any) -> dict[str, Any]:
+    from basis import CoefficientMatrix
+    from compress import Hybrid
+
+    if isinstance(obj, Hybrid):
+        return {"lobe": _model(obj.lobe), "residual": _matrix(obj.residual),
+                "nbytes": int(obj.nbytes), "info": _plain(obj.info)}
+    if isinstance(obj, CoefficientMatrix):
+        return _matrix(obj)
+    return _model(obj)
+
+
+def _matrix(cm: Any) -> dict[str, Any]:
+    from compress import unique_coefficients
+
+    return {"basis": repr(cm.basis), "basis_kind": cm.basis.kind, "order": cm.basis.order,
+            "size": cm.basis.size, "quantity": cm.quantity, "channels": cm.channels,
+            "scalar": bool(cm.is_scalar), "isotropic": bool(cm.is_isotropic),
+            "unique_coefficients": int(unique_coefficients(cm)), "nbytes": int(cm.nbytes),
+            "info": _plain(cm.info)}
+
+
+def _model(m: Any) -> dict[str, Any]:
+    return {"family": m.family, "nparams": int(m.nparams), "channels": int(m.channels),
+            "params": {k: list(np.shape(v)) for k, v in m.params.items()},
+            "nbytes": int(m.nbytes), "info": _plain(m.info)}
+
+
+# -- checkpoints ------------------------------------------------------------------------------
+def _format(p: Path) -> Any:
+    import h5py
+
+    try:
+        with h5py.File(p, "r") as f:
+            v = f.attrs.get("format")
+    except Exception:  # noqa: BLE001 - compress.load reports what is wrong with the file
+        return None
+    return v.decode(errors="replace") if isinstance(v, bytes) else v
+
+
+def _checkpoint(p: Path, fmt: str) -> dict[str, Any]:
+    import h5py
+
+    def damaged(what: str) -> ValueError:
+        return _Damaged(f"{str(p)!r} is a damaged simulation checkpoint: {what}; run "
+                          "simulate again without --resume")
+
+    try:
+        with h5py.File(p, "r") as f:
+            a = f.attrs
+
+            def attr(name: str, kind: type) -> Any:
+                v = a.get(name)
+                v = v.decode(errors="replace") if isinstance(v, bytes) else v
+                v = v.item() if isinstance(v, np.generic) else v
+                if v is None or not isinstance(v, kind) or isinstance(v, bool):
+                    raise damaged(f"attribute {name!r} is missing or not a "
+                                  f"{kind.__name__} ({v!r})")
+                return v
+
+            def scalar(name: str, kind: type) -> Any:
+                d = f.get(name)
+                if not isinstance(d, h5py.Dataset) or d.shape != () or d.dtype.kind not in "iuf":
+                    raise damaged(f"dataset {name!r} is missing or not a number")
+                v = d[()].item()
+                if not isinstance(v, kind) or not math.isfinite(v):
+                    raise damaged(f"dataset {name!r} holds {v!r}")
+                return v
+
+            s = f.get("sum")
+            if not isinstance(s, h5py.Dataset) or s.ndim != 2 or s.shape[0] != s.shape[1]:
+                raise damaged("dataset 'sum' (the accumulated matrix) is missing or not square")
+            seeds = a.get("meta_seeds")
+            return {
+                "format": fmt,
+                "directions_done": attr("directions_done", int),
+                "rays": scalar("rays", int),
+                "chunks": scalar("chunks", int),
+                "seconds": float(scalar("seconds", int | float)),
+                "basis": attr("meta_basis", str),
+                "matrix_size": int(s.shape[0]),
+                "surface": attr("meta_surface_repr", str),
+                "incident": attr("meta_incident", str),
+                "targets": attr("meta_targets", int),
+                "chunk": attr("meta_chunk", int),
+                "seeds": [int(x) for x in np.atleast_1d(seeds)] if seeds is not None else [],
+                "energy": {k: float(scalar(k, int | float))
+                           for k in ("reflected", "absorbed", "lost")},
+                "sha256": "sha256" in a,
+            }
+    except _Damaged as exc:
+        raise ValueError(str(exc)) from None
+    except Exception as exc:  # noqa: BLE001 - h5py raises many types on damaged files
+        raise damaged(f"{type(exc).__name__}: {' '.join(str(exc).split())}") from None
+
+
+# -- text -------------------------------------------------------------------------------------
+def to_text(d: dict[str, Any]) -> str:
+    """Render a :func:`describe` dict as aligned ``key  value`` lines."""
+    lines = []
+    if d["kind"] == "checkpoint":
+        lines.append(f"{d['path']}: simulation checkpoint ({d['format']}), "
+                     f"{d['bytes_on_disk']:,} bytes on disk")
+        e = d["energy"]
+        rows = [("directions done", d["directions_done"]),
+                ("rays traced", f"{d['rays']:,} in {d['chunks']} chunk(s), "
+                                f"{d['seconds']:.3g} s"),
+                ("basis", f"{d['basis']} ({d['matrix_size']} functions)"),
+                ("surface", d["surface"]), ("incident", d["incident"]),
+                ("targets", d["targets"]), ("chunk", d["chunk"]),
+                ("seeds", ", ".join(map(str, d["seeds"]))),
+                ("energy", f"reflected {e['reflected']:.6g}, absorbed {e['absorbed']:.6g}, "
+                           f"lost {e['lost']:.6g}"),
+                ("sha256", "present (verified by simulate --resume)" if d["sha256"]
+                 else "absent")]
+        return "\n".join(lines + _rows(rows))
+    lines.append(f"{d['path']}: scatmodes {d['content']} (schema {d['schema_version']}, "
+                 f"written by {d['library']}), {d['bytes_on_disk']:,} bytes on disk, "
+                 f"{d['stored_bytes']:,} bytes of {d['dtype']} numbers")
+    if d["content"] == "hybrid":
+        lines.append(f"hybrid: {d['nbytes']:,} bytes as float64 (lobe + residual)")
+        lines += _rows(_info_rows(d["info"]), indent="  ")
+        lines.append("lobe:")
+        lines += _rows(_model_rows(d["lobe"]), indent="  ")
+        lines.append("residual:")
+        lines += _rows(_matrix_rows(d["residual"]), indent="  ")
+    elif d["content"] == "model":
+        lines += _rows(_model_rows(d))
+    else:
+        lines += _rows(_matrix_rows(d))
+    return "\n".join(lines)
+
+
+def _matrix_rows(d: dict[str, Any]) -> list[tuple[str, Any]]:
+    return [("basis", f"{d['basis']} (kind {d['basis_kind']}, order {d['order']}, "
+                      f"{d['size']} functions)"),
+            ("quantity", d["quantity"]),
+            ("channels", f"{d['channels']}{' (scalar)' if d['scalar'] else ''}"),
+            ("isotropic", "yes" if d["isotropic"] else "no (dense)"),
+            ("coefficients", f"{d['unique_coefficients']:,} unique, {d['nbytes']:,} bytes as "
+                             "float64"),
+            *_info_rows(d["info"])]
+
+
+def _model_rows(d: dict[str, Any]) -> list[tuple[str, Any]]:
+    shapes = ", ".join(f"{k} {tuple(v)}" for k, v in d["params"].items())
+    return [("family", d["family"]),
+            ("parameters", f"{d['nparams']} reals, {d['nbytes']:,} bytes as float64"),
+            ("channels", d["channels"]), ("shapes", shapes), *_info_rows(d["info"])]
+
+
+def _info_rows(info: dict[str, Any]) -> list[tuple[str, Any]]:
+    return [(f"info.{k}", _short(v)) for k, v in info.items()]
+
+
+def _rows(rows: list[tuple[str, Any]], indent: str = "") -> list[str]:
+    width = max((len(k) for k, _ in rows), default=0)
+    return [f"{indent}{k:<{width}}  {v}" for k, v in rows]
+
+
+def _short(v: Any) -> str:
+    if isinstance(v, float):
+        return f"{v:.6g}"
+    if isinstance(v, list) and len(v) > 8:
+        return f"[{', '.join(_short(x) for x in v[:8])}, ...] ({len(v)} values)"
+    if isinstance(v, list):
+        return f"[{', '.join(_short(x) for x in v)}]"
+    if isinstance(v, dict):
+        return "{" + ", ".join(f"{k}: {_short(x)}" for k, x in list(v.items())[:8]) + (
+            ", ...}" if len(v) > 8 else "}")
+    text = str(v)
+    return text if len(text) <= 120 else text[:117] + "..."
+
+
+def _plain(v: Any) -> Any:
+    """JSON-able copy of an info value: arrays and tuples as lists, nan/inf as strings."""
+    if isinstance(v, dict):
+        return {str(k): _plain(x) for k, x in v.items()}
+    if isinstance(v, np.ndarray):
+        return _plain(v.tolist())
+    if isinstance(v, list | tuple):
+        return [_plain(x) for x in v]
+    if isinstance(v, np.generic):
+        return _plain(v.item())
+    if isinstance(v, float) and not math.isfinite(v):
+        return str(v)
+    if v is None or isinstance(v, bool | int | float | str):
+        return v
+    return repr(v)
