@@ -27,8 +27,14 @@ them to M.
 
 from __future__ import annotations
 
+import contextlib
+import hashlib
 import os
+import signal
+import threading
 import time
+import warnings
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -36,8 +42,9 @@ import numpy as np
 
 from basis import Basis, CoefficientMatrix
 from basis.jit import pjit, prange
+from basis.validation import check_bytes
 
-from ..io import atomic_path
+from ..io import atomic_path, temporary_name
 from ._checks import _positive_int, _seed
 from ._paths import MAX_BOUNCES, MAX_STEPS, _alloc, incident_directions
 from .scene import Scene
@@ -49,7 +56,26 @@ __all__ = ["SimulationResult", "merge", "simulate"]
 #: energy leaving after 1, 2, ..., BOUNCE_BINS - 1 and >= BOUNCE_BINS facet interactions
 BOUNCE_BINS = 8
 
-_FORMAT = "scatmodes-microgeometry-checkpoint-1"
+#: checkpoints written now: version 1 plus a SHA-256 of their content (attribute sha256)
+_FORMAT = "scatmodes-microgeometry-checkpoint-2"
+#: version 1 (no checksum) is still read; its values are checked all the same
+_FORMAT_1 = "scatmodes-microgeometry-checkpoint-1"
+
+#: accumulators: (K, K) matrices, counts (integers), non-negative sums
+_MATRICES = ("sum", "s2", "ns")
+_COUNTS = ("chunks", "rays")
+_SCALARS = ("n2", "seconds", "reflected", "absorbed", "lost")
+_NONNEG = ("s2", "n2", "seconds", "reflected", "absorbed", "lost", "bounces")
+_META_STR = ("surface", "surface_repr", "basis", "incident")
+_META_INT = ("targets", "chunk")
+
+#: (K, K) float64 arrays alive at once in simulate: the accumulators (sum, s2, ns), their
+#: copy that a chunk updates (so that an interrupt always finds a consistent state to save)
+#: and the chunk's own m, its symmetric part and two temporaries
+_MATRIX_COPIES = 10
+#: float64 numbers per traced ray (paths, exit directions, the wavefront tracer's state)
+#: besides the ray's row of basis values
+_PER_RAY = 30
 
 
 class SimulationResult:
@@ -205,14 +231,17 @@ def simulate(
         unit of checkpointing). Default: about 32768 rays per chunk (fewer, larger
         chunks amortise the start of the parallel kernels).
     checkpoint : path, optional
-        HDF5 file to which the accumulators are saved every ``checkpoint_interval`` seconds
-        and at the end (atomically: temporary file + ``os.replace``). Checked for
-        writability before tracing starts.
+        HDF5 file to which the accumulators are saved every ``checkpoint_interval`` seconds,
+        at the end, and when the run is interrupted (KeyboardInterrupt, SIGINT, SIGTERM,
+        SystemExit), so at most one interval of work is lost (atomically: temporary file +
+        ``os.replace``; with a SHA-256 of the content). Checked for writability before
+        tracing starts, and locked for the run (the file ``<checkpoint>.lock``, see Notes).
     checkpoint_interval : float
         Seconds between checkpoints (> 0).
     resume : path, optional
         A checkpoint to continue from (must match surface, basis, seed, incident, targets and
-        chunk). Often the same path as ``checkpoint``.
+        chunk). Often the same path as ``checkpoint``. A damaged file (truncated, altered,
+        with values no run can produce) is refused with a ValueError.
     progress : bool, optional
         Show a tqdm progress bar; None shows it for runs of 10^7 rays or more.
 
@@ -220,11 +249,36 @@ def simulate(
     -------
     SimulationResult
 
+    Raises
+    ------
+    MemoryError
+        Before any work, if the accumulators and the arrays of one chunk would exceed
+        ``basis.validation.MAX_BYTES`` (e.g. HemiZernike(250): 31626 functions, 10 (K, K)
+        matrices of 7.5 GiB each).
+    ValueError
+        For a damaged or incompatible ``resume`` file, or an unwritable ``checkpoint``.
+    BlockingIOError
+        If another run holds the lock of ``checkpoint``.
+
     Notes
     -----
     Estimator: see the module docstring (Westin eq 17/25 with the corrected constants pi and
     2 pi cos_i for hemisphere-orthonormal bases). The estimate is unbiased for the
     coefficients of f cos cos within the basis; the asymmetry Q falls like 1/sqrt(rays).
+
+    Interrupts: a chunk updates a copy of the accumulators, which replaces them only once
+    the chunk is complete, so an interrupt at any moment leaves a consistent state, which
+    is saved before the interrupt continues. SIGTERM, whose default action would end the
+    process at once, is turned into an exception for the run (in the main thread, when no
+    Python handler is installed) and raised again, with its default action, once the
+    checkpoint is saved.
+
+    Lock: two runs writing the same checkpoint would overwrite each other's work, so the
+    run holds an exclusive ``fcntl.flock`` on ``<checkpoint>.lock`` (released by the
+    operating system if the process dies) and removes that file at the end. A lock file
+    left by a killed run (its lock gone with it) is taken over with a warning. Where
+    ``fcntl`` is missing, the lock file is created with ``O_CREAT | O_EXCL`` instead, and a
+    left-over one must be removed by hand.
 
     Examples
     --------
@@ -253,41 +307,64 @@ def simulate(
     chunk = _positive_int(chunk, "chunk")
     if not checkpoint_interval > 0:
         raise ValueError(f"checkpoint_interval must be > 0, got {checkpoint_interval!r}")
+    check_bytes(8.0 * (_MATRIX_COPIES * k * k + chunk * targets * (k + _PER_RAY)
+                       + chunk * (2 * k + 4)),
+                f"simulate with {basis!r} ({k} functions: {_MATRIX_COPIES} ({k}, {k}) "
+                f"accumulator matrices) and {chunk * targets} rays per chunk")
     meta = {"surface": surface.fingerprint(), "surface_repr": repr(surface),
             "basis": repr(basis), "incident": incident, "targets": targets, "chunk": chunk,
             "seeds": [int(seed)]}
     if checkpoint is not None:
         checkpoint = Path(checkpoint)
         _check_writable(checkpoint)
-    if resume is not None:
-        acc, done = _load(Path(resume), meta, k)
-    else:
-        acc, done = _empty(k), 0
     ndirs = -(-rays // targets)
     cosine = incident == "cosine"
     show = rays >= 10**7 if progress is None else bool(progress)
-    bar = None
-    if show:
-        from tqdm.auto import tqdm
-        bar = tqdm(total=ndirs * targets, initial=min(done, ndirs) * targets, unit="ray",
-                   unit_scale=True, desc="simulate")
-    last_save = time.perf_counter()
-    while done < ndirs:
-        t0 = time.perf_counter()
-        nd = min(chunk, ndirs - done)
-        _chunk(surface, basis, seed_u, done, nd, targets, cosine, acc)
-        done += nd
-        acc["seconds"] += time.perf_counter() - t0
-        if bar is not None:
-            bar.update(nd * targets)
-        if checkpoint is not None and time.perf_counter() - last_save >= checkpoint_interval:
-            _save(checkpoint, acc, meta, done)
-            last_save = time.perf_counter()
-    if bar is not None:
-        bar.close()
-    if checkpoint is not None:
-        _save(checkpoint, acc, meta, done)
+    with contextlib.ExitStack() as stack:
+        if checkpoint is not None:
+            # outermost: the lock is released before SIGTERM takes its default action
+            stack.enter_context(_sigterm_raises())
+            stack.enter_context(_locked(checkpoint))
+        if resume is not None:
+            acc, done = _load(Path(resume), meta, k)
+        else:
+            acc, done = _empty(k), 0
+        bar = None
+        if show:
+            from tqdm.auto import tqdm
+            bar = stack.enter_context(
+                tqdm(total=ndirs * targets, initial=min(done, ndirs) * targets, unit="ray",
+                     unit_scale=True, desc="simulate"))
+        # (accumulators, directions done): replaced as a whole once a chunk is complete
+        state = (acc, done)
+        last_save = time.perf_counter()
+        try:
+            while state[1] < ndirs:
+                t0 = time.perf_counter()
+                acc, done = state
+                nd = min(chunk, ndirs - done)
+                new = _copy(acc)
+                _chunk(surface, basis, seed_u, done, nd, targets, cosine, new)
+                new["seconds"] += time.perf_counter() - t0
+                state = (new, done + nd)
+                if bar is not None:
+                    bar.update(nd * targets)
+                if checkpoint is not None and \
+                        time.perf_counter() - last_save >= checkpoint_interval:
+                    _save(checkpoint, *state, meta)
+                    last_save = time.perf_counter()
+        except (KeyboardInterrupt, SystemExit, _Terminated):
+            if checkpoint is not None:
+                _save_on_interrupt(checkpoint, *state, meta)
+            raise
+        acc, done = state
+        if checkpoint is not None:
+            _save(checkpoint, acc, done, meta)
     return SimulationResult(acc, basis, meta)
+
+
+def _copy(acc: dict[str, Any]) -> dict[str, Any]:
+    return {key: val.copy() if isinstance(val, np.ndarray) else val for key, val in acc.items()}
 
 
 def _empty(k: int) -> dict[str, Any]:
@@ -353,52 +430,309 @@ def _accumulate_kernel(bu, c, bv, w, per, m):
 # -- checkpoints ------------------------------------------------------------------------------
 
 def _check_writable(path: Path) -> None:
-    tmp = path.with_name(path.name + ".tmp")
     try:
         if path.is_dir():
             raise IsADirectoryError(f"{path} is a directory")
-        with open(tmp, "wb"):
-            pass
-        tmp.unlink()
+        # a uniquely named probe: a fixed name would race with other runs in the folder
+        temporary_name(path).unlink()
     except OSError as err:
         raise ValueError(f"checkpoint must be a writable file path, got {str(path)!r} "
                          f"({err})") from None
 
 
-def _save(path: Path, acc: dict[str, Any], meta: dict[str, Any], done: int) -> None:
+class _Terminated(BaseException):
+    """SIGTERM during a run with a checkpoint (raised again as SIGTERM once it is saved)."""
+
+
+@contextlib.contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """Turn SIGTERM into :class:`_Terminated` while the body runs, if nothing else handles it.
+
+    Only when SIGTERM has its default action (which would end the process without the final
+    checkpoint) and only in the main thread, where Python runs signal handlers. A Python
+    handler that is already installed (a command line's, say) is left alone: the exception
+    it raises reaches the same final save.
+    """
+    sig = getattr(signal, "SIGTERM", None)
+    if sig is None or threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(sig) not in (signal.SIG_DFL, None):
+        yield
+        return
+
+    def handler(signum: int, frame: Any) -> None:
+        raise _Terminated
+
+    signal.signal(sig, handler)
+    try:
+        yield
+    except _Terminated:
+        signal.signal(sig, signal.SIG_DFL)
+        signal.raise_signal(sig)  # the default action: the process ends here
+        raise  # pragma: no cover - not reached
+    finally:
+        if signal.getsignal(sig) is handler:
+            signal.signal(sig, signal.SIG_DFL)
+
+
+def _save_on_interrupt(path: Path, acc: dict[str, Any], done: int, meta: dict[str, Any]) -> None:
+    """Save the last consistent state; a failure warns rather than hiding the interrupt."""
+    try:
+        _save(path, acc, done, meta)
+    except Exception as err:  # the interrupt, not the save, is what the caller must see
+        warnings.warn(f"could not save the checkpoint {str(path)!r} on the interrupt: {err}",
+                      RuntimeWarning, stacklevel=3)
+
+
+try:
+    import fcntl as _fcntl
+except ImportError:  # pragma: no cover - not POSIX
+    _fcntl = None  # type: ignore[assignment]
+
+
+def _lock_owner(lock: Path) -> str:
+    with contextlib.suppress(OSError, ValueError):
+        text = lock.read_text(encoding="ascii", errors="replace").split()
+        if text:
+            return f"process {text[0]}" + (f" on {text[1]}" if len(text) > 1 else "")
+    return "another process"
+
+
+def _in_use(path: Path, lock: Path) -> BlockingIOError:
+    return BlockingIOError(
+        f"checkpoint {str(path)!r} is in use by another run ({_lock_owner(lock)}, lock file "
+        f"{str(lock)!r}): wait for that run to finish or give another checkpoint path"
+        + ("" if _fcntl is not None else "; if no run is using it, delete the lock file"))
+
+
+@contextlib.contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    """Hold the exclusive lock of checkpoint ``path`` while the body runs (see simulate)."""
+    import socket
+
+    lock = path.with_name(path.name + ".lock")
+    me = f"{os.getpid()} {socket.gethostname()}\n".encode()
+    if _fcntl is None:  # pragma: no cover - exercised by patching _fcntl to None
+        try:
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:
+            raise _in_use(path, lock) from None
+        try:
+            os.write(fd, me)
+        finally:
+            os.close(fd)
+        try:
+            yield
+        finally:
+            with contextlib.suppress(OSError):
+                os.unlink(lock)
+        return
+    while True:
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        try:
+            _fcntl.flock(fd, _fcntl.LOCK_EX | _fcntl.LOCK_NB)
+        except OSError:
+            os.close(fd)
+            raise _in_use(path, lock) from None
+        # the holder may have removed the file between our open and flock: then the lock is
+        # on an orphaned inode, and the name must be opened again
+        try:
+            same = os.stat(lock).st_ino == os.fstat(fd).st_ino
+        except FileNotFoundError:
+            same = False
+        if same:
+            break
+        os.close(fd)
+    try:
+        before = os.read(fd, 256).decode("ascii", errors="replace").split()
+        if before:
+            # the kernel released the lock when that process ended; only its file remained
+            warnings.warn(f"checkpoint {str(path)!r}: taking over the lock file {str(lock)!r} "
+                          f"left by process {before[0]}, which no longer holds it (it ended "
+                          "without removing it)", RuntimeWarning, stacklevel=5)
+        os.lseek(fd, 0, os.SEEK_SET)
+        os.ftruncate(fd, 0)
+        os.write(fd, me)
+        yield
+    finally:
+        # remove the name before unlocking, so that a waiting run cannot lock a file that is
+        # about to vanish (the inode check above catches the opposite order)
+        with contextlib.suppress(OSError):
+            os.unlink(lock)
+        os.close(fd)
+
+
+def _canonical(acc: dict[str, Any], done: int, meta: dict[str, Any]) -> Iterator[bytes]:
+    """Yield the content of a checkpoint that its SHA-256 covers, in a fixed encoding."""
+    yield f"{_FORMAT}\0directions_done={int(done)}\0".encode()
+    for key in sorted(meta):
+        val = meta[key]
+        text = ",".join(str(int(x)) for x in np.atleast_1d(val)) if key == "seeds" else \
+            str(int(val)) if key in _META_INT else str(val)
+        # h5py decodes undecodable bytes of damaged text as surrogates: keep them distinct
+        yield f"meta_{key}={text}\0".encode("utf-8", "surrogateescape")
+    for key in sorted(acc):
+        a = np.ascontiguousarray(acc[key], dtype=np.int64 if key in _COUNTS else np.float64)
+        yield f"{key}{a.shape}\0".encode()
+        yield a.tobytes() if a.ndim == 0 else memoryview(a).cast("B")
+
+
+def _digest(acc: dict[str, Any], done: int, meta: dict[str, Any]) -> str:
+    h = hashlib.sha256()
+    for part in _canonical(acc, done, meta):
+        h.update(part)
+    return h.hexdigest()
+
+
+def _save(path: Path, acc: dict[str, Any], done: int, meta: dict[str, Any]) -> None:
     import h5py
 
     with atomic_path(path, suffix=".tmp") as tmp, h5py.File(tmp, "w") as f:
         f.attrs["format"] = _FORMAT
-        f.attrs["directions_done"] = done
+        f.attrs["directions_done"] = np.int64(done)
         for key, val in meta.items():
             f.attrs["meta_" + key] = val if key != "seeds" else np.asarray(val, np.uint64)
         for key, val in acc.items():
-            f.create_dataset(key, data=val)
+            f.create_dataset(key, data=np.asarray(
+                val, dtype=np.int64 if key in _COUNTS else np.float64))
+        f.attrs["sha256"] = _digest(acc, done, meta)
+
+
+class _Damaged(ValueError):
+    """What is wrong with a checkpoint file (reworded by :func:`_load` into one message)."""
 
 
 def _load(path: Path, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], int]:
+    """Read and check a checkpoint: every failure is one ValueError naming the file."""
     import h5py
 
     if not path.is_file():
         raise FileNotFoundError(f"resume must name an existing checkpoint file, got "
                                 f"{str(path)!r}")
-    with h5py.File(path, "r") as f:
-        if f.attrs.get("format") != _FORMAT:
-            raise ValueError(f"resume file {str(path)!r} is not a simulate checkpoint")
-        names = {"surface": "surface", "basis": "basis", "seeds": "seed",
-                 "incident": "incident", "targets": "targets", "chunk": "chunk"}
-        for key, label in names.items():
-            got = f.attrs["meta_" + key]
-            got = [int(x) for x in got] if key == "seeds" else got
-            got = int(got) if key in ("targets", "chunk") else got
-            if got != meta[key]:
-                raise ValueError(f"resume file {str(path)!r} is incompatible: it was made "
-                                 f"with a different {label} ({got!r}, this run "
-                                 f"{meta[key]!r})")
-        acc = {key: (f[key][()] if f[key].shape else f[key][()].item()) for key in f}
-        done = int(f.attrs["directions_done"])
-    if acc["sum"].shape != (k, k):
-        raise ValueError(f"resume file {str(path)!r} is incompatible: matrix shape "
-                         f"{acc['sum'].shape}, basis needs ({k}, {k})")
+    name = f"resume file {str(path)!r}"
+    advice = ("it cannot be resumed: start afresh without resume (delete or move the file), "
+              "or resume from a copy")
+    try:
+        f = h5py.File(path, "r")
+    except Exception as err:  # h5py reports damage as OSError, KeyError, RuntimeError, ...
+        raise ValueError(f"{name} is not a readable HDF5 checkpoint, it may be truncated or "
+                         f"damaged ({' '.join(str(err).split())}); {advice}") from None
+    with f:
+        try:
+            fmt = f.attrs.get("format")
+        except Exception:  # an unreadable attribute table: not a checkpoint
+            fmt = None
+        if fmt not in (_FORMAT, _FORMAT_1):
+            raise ValueError(f"{name} is not a simulate checkpoint (its format attribute is "
+                             f"{fmt!r}, expected {_FORMAT!r})")
+        try:
+            got, acc, done, digest = _read(f, meta, k)
+        except _Damaged as err:
+            raise ValueError(f"{name} is damaged: {err}; {advice}") from None
+        except Exception as err:  # HDF5's errors on corrupt metadata have many types
+            raise ValueError(f"{name} is damaged ({type(err).__name__}: "
+                             f"{' '.join(str(err).split())}); {advice}") from None
+    if not acc:  # another basis: its matrices were not read
+        _compatible(name, got, meta)
+    if fmt == _FORMAT and digest != _digest(acc, done, got):
+        raise ValueError(f"{name} is damaged: its content does not match its SHA-256 "
+                         f"checksum (altered or corrupted after it was written); {advice}")
+    _compatible(name, got, meta)
+    try:
+        _check_values(acc, done, meta, k)
+    except _Damaged as err:
+        raise ValueError(f"{name} is damaged: {err}; {advice}") from None
     return acc, done
+
+
+def _read(f: Any, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], dict[str, Any], int,
+                                                          str | None]:
+    """Read the attributes and accumulators of an open checkpoint, checking their types."""
+    import h5py
+
+    def attr(key: str) -> Any:
+        if key not in f.attrs:
+            raise _Damaged(f"it lacks the attribute {key!r}")
+        return f.attrs[key]
+
+    def integer(key: str, val: Any) -> int:
+        if isinstance(val, (bool, np.bool_)) or not isinstance(val, (int, np.integer)):
+            raise _Damaged(f"attribute {key!r} must be an integer, got {val!r}")
+        return int(val)
+
+    got: dict[str, Any] = {}
+    for key in _META_STR:
+        val = attr("meta_" + key)
+        if not isinstance(val, str):
+            raise _Damaged(f"attribute 'meta_{key}' must be text, got {val!r}")
+        got[key] = val
+    for key in _META_INT:
+        got[key] = integer("meta_" + key, attr("meta_" + key))
+    seeds = np.asarray(attr("meta_seeds"))
+    if seeds.ndim != 1 or seeds.size == 0 or seeds.dtype.kind not in "iu":
+        raise _Damaged(f"attribute 'meta_seeds' must be a list of integers, got {seeds!r}")
+    got["seeds"] = [int(x) for x in seeds]
+    done = integer("directions_done", attr("directions_done"))
+    digest = None
+    if f.attrs.get("format") == _FORMAT:
+        digest = attr("sha256")
+        if not isinstance(digest, str):
+            raise _Damaged(f"attribute 'sha256' must be text, got {digest!r}")
+    if got["basis"] != meta["basis"]:
+        # another basis: _compatible says so; its matrices have another shape
+        return got, {}, done, digest
+    shapes = {**{key: (k, k) for key in _MATRICES}, "bounces": (BOUNCE_BINS,),
+              **{key: () for key in _COUNTS + _SCALARS}}
+    acc: dict[str, Any] = {}
+    for key, shape in shapes.items():
+        ds = f.get(key)
+        if not isinstance(ds, h5py.Dataset):
+            raise _Damaged(f"it lacks the dataset {key!r}")
+        # the shape is checked before reading: a damaged header could announce terabytes
+        if ds.shape != shape:
+            raise _Damaged(f"dataset {key!r} has shape {ds.shape}, expected {shape}")
+        want = "iu" if key in _COUNTS else "f"
+        if ds.dtype.kind not in want:
+            raise _Damaged(f"dataset {key!r} must hold {'integers' if key in _COUNTS else 'floats'}"
+                           f", got dtype {ds.dtype}")
+        val = ds[()]
+        acc[key] = int(val) if key in _COUNTS else float(val) if not shape else \
+            np.asarray(val, dtype=np.float64)
+    return got, acc, done, digest
+
+
+def _compatible(name: str, got: dict[str, Any], meta: dict[str, Any]) -> None:
+    labels = {"surface": "surface", "basis": "basis", "seeds": "seed", "incident": "incident",
+              "targets": "targets", "chunk": "chunk"}
+    for key, label in labels.items():
+        if got[key] != meta[key]:
+            raise ValueError(f"{name} is incompatible: it was made with a different {label} "
+                             f"({got[key]!r}, this run {meta[key]!r})")
+
+
+def _check_values(acc: dict[str, Any], done: int, meta: dict[str, Any], k: int) -> None:
+    """Refuse accumulators that no run can have produced (raises _Damaged)."""
+    for key, val in acc.items():
+        a = np.asarray(val, dtype=np.float64)
+        if not np.all(np.isfinite(a)):
+            raise _Damaged(f"{key!r} holds NaN or infinite values")
+        if (key in _NONNEG or key in _COUNTS) and np.any(a < 0):
+            raise _Damaged(f"{key!r} must be >= 0, got {a.min():g}")
+    if done < 0:
+        raise _Damaged(f"directions_done must be >= 0, got {done}")
+    targets, chunk = meta["targets"], meta["chunk"]
+    rays, chunks = acc["rays"], acc["chunks"]
+    if rays != done * targets:
+        raise _Damaged(f"it holds {rays} rays, but directions_done = {done} at {targets} rays "
+                       f"per direction means {done * targets}")
+    if not (done == 0 == chunks or -(-done // chunk) <= chunks <= done):
+        raise _Damaged(f"{chunks} chunks cannot hold {done} directions of at most {chunk} per "
+                       "chunk")
+    n2 = acc["n2"]
+    if chunks and not (rays * rays / chunks * (1 - 1e-12) <= n2 <=
+                       rays * chunk * targets * (1 + 1e-12)):
+        raise _Damaged(f"n2 = {n2:g} (the sum of squared rays per chunk) is impossible for "
+                       f"{rays} rays in {chunks} chunks")
+    bounced = float(np.sum(acc["bounces"]))
+    if bounced > acc["reflected"] * (1 + 1e-9) + 1e-300:
+        raise _Damaged(f"the reflected energy per bounce count sums to {bounced:g}, more than "
+                       f"the reflected total {acc['reflected']:g}")

@@ -1,13 +1,20 @@
 """estimate.py: the Monte Carlo estimator of the coefficient matrix -- its constants (flat
 Lambertian and mirror planes against their projections, the lossless albedo), convergence,
-determinism across threads and chunks, merging, checkpoints, and bad input.
+determinism across threads and chunks, merging, checkpoints (interrupts, SIGTERM, the lock,
+damaged files), memory limits, and bad input.
 
 Monte Carlo assertions use k = 5 standard errors unless stated otherwise; seeds are fixed.
 """
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
+import sys
+import time
 import warnings
+from pathlib import Path
 
 import numba
 import numpy as np
@@ -191,3 +198,307 @@ def test_bad_simulate_objects(rough):
         trace(rough, [0.6, 0.0, -0.8], 10)
     with pytest.raises(ValueError, match=r"rays must be > 0, got 0"):
         trace(rough, [0.0, 0.0, 1.0], 0)
+
+
+# -- interrupts, locks and damaged checkpoints -------------------------------------------------
+
+def _small_checkpoint(rough, path, **kw):
+    args = {"surface": rough, "basis": HemiZernike(2), "seed": 5, "chunk": 50}
+    res = simulate(**args, rays=2000, checkpoint=path, **kw)
+    return args, res
+
+
+def test_interrupt_inside_a_chunk_saves_the_last_complete_state(rough, tmp_path, monkeypatch):
+    # the interrupt lands after the chunk has updated its accumulators: that half-counted
+    # chunk must not reach the checkpoint (before, the accumulators were updated in place)
+    basis, path = HemiZernike(2), tmp_path / "run.h5"
+    full = simulate(rough, basis, rays=4000, seed=1, chunk=50)
+    real, calls = est_mod._chunk, []
+
+    def late(*args):
+        real(*args)
+        calls.append(1)
+        if len(calls) == 4:
+            raise KeyboardInterrupt
+
+    monkeypatch.setattr(est_mod, "_chunk", late)
+    with pytest.raises(KeyboardInterrupt):
+        simulate(rough, basis, rays=4000, seed=1, chunk=50, checkpoint=path,
+                 checkpoint_interval=3600.0)  # no periodic save: this is the final one
+    monkeypatch.setattr(est_mod, "_chunk", real)
+    part = simulate(rough, basis, rays=3 * 50 * 8, seed=1, chunk=50, resume=path)
+    assert part.rays == 3 * 50 * 8
+    rest = simulate(rough, basis, rays=4000, seed=1, chunk=50, resume=path)
+    np.testing.assert_allclose(rest.raw, full.raw, rtol=0, atol=1e-13)
+    assert not (tmp_path / "run.h5.lock").exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.h5"]
+
+
+def test_system_exit_from_a_signal_handler_saves_a_checkpoint(rough, tmp_path, monkeypatch):
+    real, calls = est_mod._chunk, []
+
+    def stop(*args):
+        if len(calls) == 2:
+            raise SystemExit(143)  # what a command line's SIGTERM handler raises
+        calls.append(1)
+        real(*args)
+
+    monkeypatch.setattr(est_mod, "_chunk", stop)
+    path = tmp_path / "run.h5"
+    with pytest.raises(SystemExit):
+        simulate(rough, HemiZernike(2), rays=4000, seed=1, chunk=50, checkpoint=path,
+                 checkpoint_interval=3600.0)
+    monkeypatch.setattr(est_mod, "_chunk", real)
+    assert simulate(rough, HemiZernike(2), rays=800, seed=1, chunk=50, resume=path).rays == 800
+
+
+_RUN = """
+import sys
+from pathlib import Path
+from basis import HemiZernike
+from project.microgeometry import GaussianSurface, estimate, simulate
+real, count = estimate._chunk, []
+def chunk(*args):
+    real(*args)
+    count.append(1)
+    if len(count) == 3:
+        Path(sys.argv[2]).write_text("3 chunks")
+estimate._chunk = chunk
+simulate(GaussianSurface(1.0, 6.5, resolution=64, seed=3), HemiZernike(2), rays=10**9, seed=1,
+         chunk=50, checkpoint=sys.argv[1], checkpoint_interval=3600.0)
+"""
+
+
+def _run_until(code, args, flag, sig, cwd):
+    with subprocess.Popen([sys.executable, "-c", code, *args], cwd=cwd,
+                          stderr=subprocess.PIPE, text=True) as proc:
+        try:
+            deadline = time.time() + 120
+            while not flag.exists() and proc.poll() is None and time.time() < deadline:
+                time.sleep(0.05)
+            assert flag.exists(), proc.stderr.read() if proc.poll() is not None else "timeout"
+            proc.send_signal(sig)
+            proc.wait(60)
+            return proc.returncode, proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+
+
+def test_sigterm_saves_a_final_checkpoint_and_still_ends_the_process(rough, tmp_path):
+    path, flag = tmp_path / "run.h5", tmp_path / "flag"
+    root = Path(__file__).resolve().parents[3]
+    code, err = _run_until(_RUN, [str(path), str(flag)], flag, signal.SIGTERM, root)
+    assert code == -signal.SIGTERM, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flag", "run.h5"]  # no lock, no tmp
+    done = simulate(rough, HemiZernike(2), rays=50 * 8, seed=1, chunk=50, resume=path)
+    # the flag is written inside the third chunk: at least two are complete when it arrives
+    assert done.rays >= 2 * 50 * 8 and done.rays % (50 * 8) == 0
+
+
+def test_a_checkpoint_in_use_is_refused(rough, tmp_path, monkeypatch):
+    path = tmp_path / "run.h5"
+    monkeypatch.setattr(est_mod, "_chunk", lambda *a: pytest.fail("traced despite the lock"))
+    with est_mod._locked(path):  # private: the lock a running simulate holds
+        with pytest.raises(BlockingIOError, match=rf"checkpoint '.*run\.h5' is in use by "
+                                                  rf"another run \(process {os.getpid()} on "):
+            simulate(rough, HemiZernike(2), rays=1000, checkpoint=path)
+    assert not (tmp_path / "run.h5.lock").exists()
+
+
+_HOLD = """
+import fcntl, os, sys, time
+fd = os.open(sys.argv[1], os.O_RDWR | os.O_CREAT, 0o666)
+fcntl.flock(fd, fcntl.LOCK_EX)
+os.write(fd, f"{os.getpid()} elsewhere\\n".encode())
+open(sys.argv[2], "w").close()
+time.sleep(120)
+"""
+
+
+def test_lock_of_another_process_then_of_a_dead_one(rough, tmp_path):
+    path, lock, flag = tmp_path / "run.h5", tmp_path / "run.h5.lock", tmp_path / "flag"
+    with subprocess.Popen([sys.executable, "-c", _HOLD, str(lock), str(flag)]) as proc:
+        try:
+            deadline = time.time() + 30
+            while not flag.exists() and time.time() < deadline:
+                time.sleep(0.02)
+            with pytest.raises(BlockingIOError, match=rf"in use by another run \(process "
+                                                      rf"{proc.pid} on elsewhere"):
+                simulate(rough, HemiZernike(2), rays=400, checkpoint=path)
+        finally:
+            proc.kill()  # SIGKILL: the lock file stays behind, its lock goes with the process
+            proc.wait()
+    assert lock.exists()
+    with pytest.warns(RuntimeWarning, match=rf"taking over the lock file .* left by process "
+                                            rf"{proc.pid}, which no longer holds it"):
+        res = simulate(rough, HemiZernike(2), rays=400, checkpoint=path)
+    assert res.rays == 400 and path.exists() and not lock.exists()
+
+
+def test_lock_without_fcntl(rough, tmp_path, monkeypatch):
+    monkeypatch.setattr(est_mod, "_fcntl", None)  # the O_CREAT | O_EXCL fallback
+    path = tmp_path / "run.h5"
+    with est_mod._locked(path):
+        with pytest.raises(BlockingIOError, match="if no run is using it, delete the lock"):
+            simulate(rough, HemiZernike(2), rays=400, checkpoint=path)
+    assert simulate(rough, HemiZernike(2), rays=400, checkpoint=path).rays == 400
+    assert not (tmp_path / "run.h5.lock").exists()
+
+
+def test_files_beside_the_checkpoint_are_left_alone(rough, tmp_path):
+    # before, the writability probe used the fixed name run.h5.tmp and deleted it
+    other = tmp_path / "run.h5.tmp"
+    other.write_text("someone else's")
+    simulate(rough, HemiZernike(2), rays=400, checkpoint=tmp_path / "run.h5")
+    assert other.read_text() == "someone else's"
+
+
+def _resume(args, path):
+    return simulate(**args, rays=2000, resume=path)
+
+
+def test_damaged_checkpoints_fuzz(rough, tmp_path):
+    path = tmp_path / "good.h5"
+    args, res = _small_checkpoint(rough, path)
+    data = path.read_bytes()
+    bad = tmp_path / "bad.h5"
+    rng = np.random.default_rng(14)
+    outcomes = {"refused": 0, "identical": 0}
+
+    def check(blob):
+        bad.write_bytes(blob)
+        try:
+            back = _resume(args, bad)
+        except (ValueError, OSError) as err:
+            assert "\n" not in str(err) and "bad.h5" in str(err), str(err)
+            outcomes["refused"] += 1
+        else:
+            # whatever was hit is not part of the content (padding, free space): same result
+            np.testing.assert_array_equal(back.raw, res.raw)
+            assert back.rays == res.rays
+            outcomes["identical"] += 1
+
+    for n in [0, 1, 8, 100, 511, len(data) // 3, len(data) // 2, len(data) - 64,
+              len(data) - 1]:
+        check(data[:n])
+    for pos in rng.integers(0, len(data), 300):
+        blob = bytearray(data)
+        blob[pos] ^= int(rng.integers(1, 256))
+        check(bytes(blob))
+    # 94 of the 309 damaged files are refused; the other flips hit padding and free space
+    assert outcomes["refused"] > 60, outcomes
+
+
+def _alter(path, change):
+    import h5py
+
+    with h5py.File(path, "r+") as f:
+        change(f)
+
+
+def _replace(key, value):
+    def change(f):
+        del f[key]
+        f[key] = value
+    return change
+
+
+def _set(key, index, value):
+    def change(f):
+        a = f[key][()]
+        a[index] = value
+        f[key][...] = a
+    return change
+
+
+@pytest.mark.parametrize("change, match", [
+    (_set("sum", (0, 0), np.nan), r"'sum' holds NaN or infinite values"),
+    (_set("s2", (1, 1), -1.0), r"'s2' must be >= 0, got -1"),
+    (_set("bounces", 2, -0.5), r"'bounces' must be >= 0"),
+    (_replace("reflected", -3.0), r"'reflected' must be >= 0"),
+    (_replace("seconds", np.inf), r"'seconds' holds NaN"),
+    (_replace("rays", 1999), r"it holds 1999 rays, but directions_done = 250 at 8 rays per "
+                             r"direction means 2000"),
+    (lambda f: f.attrs.__setitem__("directions_done", np.int64(2**62)),
+     r"it holds 2000 rays, but directions_done = 4611686018427387904"),
+    (lambda f: f.attrs.__setitem__("directions_done", np.int64(-1)), r"directions_done must"),
+    (_replace("chunks", 0), r"0 chunks cannot hold 250 directions"),
+    (_replace("chunks", 1000), r"1000 chunks cannot hold 250 directions"),
+    (_replace("n2", 1.0), r"n2 = 1 .* is impossible for 2000 rays in 5 chunks"),
+    (_replace("bounces", np.full(8, 1e9)),
+     r"the reflected energy per bounce count sums to 8e\+09, more than"),
+    (_replace("sum", np.zeros((2, 2))), r"dataset 'sum' has shape \(2, 2\), expected \(6, 6\)"),
+    (_replace("rays", "many"), r"dataset 'rays' must hold integers"),
+    (_replace("n2", np.zeros(3)), r"dataset 'n2' has shape \(3,\)"),
+    (lambda f: f.__delitem__("s2"), r"it lacks the dataset 's2'"),
+    (lambda f: f.attrs.__delitem__("meta_targets"), r"lacks the attribute 'meta_targets'"),
+    (lambda f: f.attrs.__setitem__("meta_chunk", 50.0), r"'meta_chunk' must be an integer"),
+    (lambda f: f.attrs.__setitem__("meta_seeds", "five"), r"'meta_seeds' must be a list"),
+    (lambda f: f.attrs.__setitem__("meta_basis", np.zeros(3)), r"'meta_basis' must be text"),
+], ids=["nan", "negative-s2", "negative-bounces", "negative-reflected", "inf-seconds",
+        "rays-vs-directions", "huge-directions", "negative-directions", "no-chunks",
+        "many-chunks", "n2", "bounces-vs-reflected", "shape", "dtype", "scalar-shape",
+        "missing-dataset", "missing-attribute", "float-chunk", "text-seeds", "array-basis"])
+def test_altered_checkpoints_are_refused(rough, tmp_path, change, match):
+    path = tmp_path / "run.h5"
+    args, _ = _small_checkpoint(rough, path)
+    # an unsigned (version 1) file: the values themselves are checked
+    _alter(path, lambda f: (f.attrs.__setitem__("format", est_mod._FORMAT_1),
+                            f.attrs.__delitem__("sha256")))
+    _resume(args, path)  # still fine as it stands
+    _alter(path, change)
+    with pytest.raises(ValueError, match=r"resume file '.*run\.h5' is damaged: .*" + match):
+        _resume(args, path)
+
+
+def test_altered_signed_checkpoint_fails_its_checksum(rough, tmp_path):
+    path = tmp_path / "run.h5"
+    args, _ = _small_checkpoint(rough, path)
+    _alter(path, _set("sum", (2, 3), 1e-3))  # a plausible value: only the checksum sees it
+    with pytest.raises(ValueError, match=r"does not match its SHA-256 checksum"):
+        _resume(args, path)
+
+
+@pytest.mark.parametrize("blob, match", [
+    (b"", r"is not a readable HDF5 checkpoint"),
+    (b"\x89HDF\r\n\x1a\n" + bytes(200), r"is not a readable HDF5 checkpoint"),
+    (b"hello", r"is not a readable HDF5 checkpoint"),
+])
+def test_not_a_checkpoint(rough, tmp_path, blob, match):
+    path = tmp_path / "x.h5"
+    path.write_bytes(blob)
+    with pytest.raises(ValueError, match=match + r".*start afresh"):
+        simulate(rough, HemiZernike(2), rays=400, resume=path)
+
+
+def test_foreign_hdf5_is_not_a_checkpoint(rough, tmp_path):
+    import h5py
+
+    path = tmp_path / "x.h5"
+    with h5py.File(path, "w") as f:
+        f["data"] = np.zeros(3)
+    with pytest.raises(ValueError, match=r"is not a simulate checkpoint \(its format attribute "
+                                         r"is None"):
+        simulate(rough, HemiZernike(2), rays=400, resume=path)
+
+
+# -- memory ------------------------------------------------------------------------------------
+
+def test_huge_basis_is_refused_before_allocating(rough, monkeypatch):
+    monkeypatch.setattr(est_mod, "_chunk", lambda *a: pytest.fail("traced"))
+    monkeypatch.setattr(est_mod, "_empty", lambda *a: pytest.fail("allocated"))
+    with pytest.raises(MemoryError, match=r"simulate with HemiZernike\(250\) \(31626 functions: "
+                                          r"10 \(31626, 31626\) accumulator matrices\).* would "
+                                          r"need 84\.2 GiB, more than the limit"):
+        simulate(rough, HemiZernike(250), rays=1000)
+
+
+def test_memory_limit_counts_the_chunk(rough, monkeypatch):
+    import basis.validation
+
+    # HemiZernike(2): 6 functions; 32768 rays per chunk need 32768 * 36 * 8 = 9.4 MB
+    monkeypatch.setattr(basis.validation, "MAX_BYTES", 5 * 2**20)
+    with pytest.raises(MemoryError, match=r"32768 rays per chunk"):
+        simulate(rough, HemiZernike(2), rays=1000)
+    assert simulate(rough, HemiZernike(2), rays=1000, chunk=100).rays == 1000
