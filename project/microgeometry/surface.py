@@ -18,9 +18,16 @@ import hashlib
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from basis.validation import check_bytes
+
 from .materials import DIELECTRIC, Material, Mirror
 
 __all__ = ["GaussianSurface", "Heightfield"]
+
+#: Peak bytes per grid point of GaussianSurface: white noise, wavenumbers and filter (float64),
+#: the complex spectrum, its filtered copy and the inverse transform (complex128); measured
+#: with tracemalloc at 72.0 for resolution 1024
+_BYTES_PER_POINT = 72.0
 
 
 class Heightfield:
@@ -224,6 +231,8 @@ class GaussianSurface(Heightfield):
             raise ValueError(f"resolution must be >= 4, got {resolution}")
         sp = tau / 4.0 if spacing is None else _positive(spacing, "spacing")
         n = int(resolution)
+        check_bytes(_BYTES_PER_POINT * n * n, f"GaussianSurface(resolution={n}) "
+                                              f"({n} x {n} points)")
         rng = np.random.default_rng(seed)
         white = rng.standard_normal((n, n))
         k = 2.0 * np.pi * np.fft.fftfreq(n, d=sp)

@@ -71,6 +71,28 @@ def test_bad_gaussian_surface(kwargs, exc, match):
         GaussianSurface(**kwargs)
 
 
+def test_huge_gaussian_surface_is_refused_before_allocating():
+    # 12000^2 points at 72 bytes each: 9.7 GiB, over the 8 GiB of basis.validation.MAX_BYTES
+    # (before, numpy tried to allocate them)
+    with pytest.raises(MemoryError, match=r"GaussianSurface\(resolution=12000\) \(12000 x "
+                                          r"12000 points\) would need 9\.66 GiB"):
+        GaussianSurface(1.0, 1.0, resolution=12000)
+
+
+def test_gaussian_surface_memory_estimate_is_the_measured_peak():
+    import tracemalloc
+
+    from project.microgeometry import surface
+
+    tracemalloc.start()
+    try:
+        GaussianSurface(1.0, 3.0, resolution=256)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak <= surface._BYTES_PER_POINT * 256**2 * 1.05
+
+
 @pytest.mark.parametrize("heights, spacing, match", [
     (np.zeros((0, 0)), 1.0, r"non-empty 2-D array, got shape \(0, 0\)"),
     (np.zeros(5), 1.0, r"non-empty 2-D array, got shape \(5,\)"),
