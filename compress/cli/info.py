@@ -58,9 +58,10 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         or ``"hybrid"``), ``schema_version``, ``library``, ``dtype``, ``stored_bytes`` (the
         numbers held, at the stored precision) and the description of the object: for a
         matrix ``basis``, ``basis_kind``, ``order``, ``size``, ``quantity``, ``channels``,
-        ``scalar``, ``isotropic``, ``unique_coefficients``, ``info``; for a model
+        ``scalar``, ``isotropic``, ``unique_coefficients``, ``nbytes`` (held in memory,
+        :attr:`basis.CoefficientMatrix.nbytes`), ``info``; for a model
         ``family``, ``nparams``, ``channels``, ``params`` (name to shape), ``info``; for a
-        hybrid ``lobe`` and ``residual`` (those two) and ``info``. A checkpoint adds
+        hybrid ``lobe`` and ``residual`` (those two), ``nbytes`` and ``info``. A checkpoint adds
         ``format``, ``directions_done``, ``rays``, ``chunks``, ``seconds``, ``basis``,
         ``matrix_size``, ``surface``, ``incident``, ``targets``, ``chunk``, ``seeds``,
         ``energy`` (reflected, absorbed, lost) and ``sha256`` (whether the checkpoint carries
@@ -250,8 +251,9 @@ def _matrix_rows(d: dict[str, Any]) -> list[tuple[str, Any]]:
             ("quantity", d["quantity"]),
             ("channels", f"{d['channels']}{' (scalar)' if d['scalar'] else ''}"),
             ("isotropic", "yes" if d["isotropic"] else "no (dense)"),
-            ("coefficients", f"{d['unique_coefficients']:,} unique, {d['nbytes']:,} bytes as "
-                             "float64"),
+            ("coefficients", f"{d['unique_coefficients']:,} unique "
+                             f"({8 * d['unique_coefficients']:,} bytes as float64; "
+                             f"{d['nbytes']:,} bytes in memory)"),
             *_info_rows(d["info"])]
 
 

@@ -1,0 +1,199 @@
+"""``scatmodes info FILE``: descriptions of saved matrices, models, hybrids and simulation
+checkpoints (text and JSON), and one-line errors for missing, foreign and damaged files."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+
+import basis
+from basis import CoefficientMatrix
+from compress import Hybrid, save
+from compress.cli import main
+from project import FittedModel
+
+
+def run(capsys, *argv):
+    """main(argv) -> (status, stdout, stderr)."""
+    try:
+        status = main(list(argv))
+    except SystemExit as stop:
+        status = stop.code
+    out, err = capsys.readouterr()
+    return status, out, err
+
+
+def described(capsys, path):
+    """The --json description of ``path`` (asserts success)."""
+    status, out, err = run(capsys, "info", str(path), "--json")
+    assert status == 0, err
+    return json.loads(out)
+
+
+def one_line_error(capsys, *argv):
+    status, out, err = run(capsys, *argv)
+    assert status == 2, err
+    assert out == "" and "Traceback" not in err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("scatmodes info: error: "), lines[0]
+    return lines[0]
+
+
+def rows(out):
+    """``key  value`` lines of the text form as a dict (indentation and padding dropped)."""
+    out_rows = {}
+    for line in out.splitlines()[1:]:
+        key, _, value = line.strip().partition("  ")
+        out_rows.setdefault(key, value.strip())
+    return out_rows
+
+
+def _matrix(rng, order=3, channels=3, quantity="f_cos"):
+    b = basis.HemiZernike(order)
+    blocks = []
+    for idx in b.azimuthal_blocks().cos:
+        x = rng.normal(size=(channels, idx.size, idx.size))
+        blocks.append(x + x.swapaxes(1, 2))
+    return CoefficientMatrix.from_blocks(b, blocks, quantity,
+                                         info={"source": "Phong(kd=0.3)", "truncation_error":
+                                               0.0125, "stderr": np.arange(3.0),
+                                               "bad": float("nan")})
+
+
+def _ggx():
+    return FittedModel("lambert+ggx", {"kd": [0.5, 0.4, 0.3], "ks": [1, 1, 1], "alpha": 0.2,
+                                       "f0": 1.0}, info={"l2": 0.031, "converged": True})
+
+
+def test_matrix_text_and_json(tmp_path, rng, capsys):
+    path = save(_matrix(rng), tmp_path / "phong.h5")
+    status, out, err = run(capsys, "info", str(path))
+    assert status == 0, err
+    with h5py.File(path, "r") as f:
+        library = f.attrs["library"].decode()
+    assert out.splitlines()[0] == (f"{path}: scatmodes coefficients (schema 3, written by "
+                                   f"{library}), {os.path.getsize(path):,} bytes on disk, "
+                                   "192 bytes of float64 numbers")
+    r = rows(out)
+    assert r["basis"] == "HemiZernike(3) (kind zernike, order 3, 10 functions)"
+    assert r["quantity"] == "f_cos" and r["channels"] == "3" and r["isotropic"] == "yes"
+    # 3 channels x (2 x 2 + 2 x 2 + 1 + 1) block entries held in memory
+    assert r["coefficients"] == "24 unique (192 bytes as float64; 240 bytes in memory)"
+    assert r["info.source"] == "Phong(kd=0.3)" and r["info.stderr"] == "[0, 1, 2]"
+    assert r["info.truncation_error"] == "0.0125" and r["info.bad"] == "nan"
+
+    d = described(capsys, path)
+    # k_m = 2, 2, 1, 1: 3 + 3 + 1 + 1 upper-triangle entries per channel, 8 bytes each
+    assert d["stored_bytes"] == 3 * 8 * 8 and d["bytes_on_disk"] == os.path.getsize(path)
+    assert d["kind"] == "representation" and d["content"] == "coefficients"
+    assert (d["basis_kind"], d["order"], d["size"], d["channels"]) == ("zernike", 3, 10, 3)
+    assert d["isotropic"] and not d["scalar"] and d["dtype"] == "float64"
+    assert d["unique_coefficients"] == 24 and d["nbytes"] == 240
+    assert d["info"] == {"source": "Phong(kd=0.3)", "truncation_error": 0.0125,
+                         "stderr": [0.0, 1.0, 2.0], "bad": "nan"}
+
+
+def test_reduced_precision_and_dense(tmp_path, rng, capsys):
+    cm = _matrix(rng, channels=1)
+    dense = CoefficientMatrix(cm.basis, cm.matrix, cm.quantity, isotropic=False)
+    d = described(capsys, save(dense, tmp_path / "d.h5", dtype="float32"))
+    assert d["dtype"] == "float32" and not d["isotropic"]
+    assert d["stored_bytes"] == 4 * 10 * 11 // 2  # the upper triangle of the dense 10 x 10
+    status, out, _ = run(capsys, "info", str(tmp_path / "d.h5"))
+    assert "bytes of float32 numbers" in out and rows(out)["isotropic"] == "no (dense)"
+
+
+def test_model(tmp_path, capsys):
+    path = save(_ggx(), tmp_path / "m.h5")
+    d = described(capsys, path)
+    assert d["content"] == "model" and d["family"] == "lambert+ggx"
+    assert d["nparams"] == 8 and d["channels"] == 3 and d["nbytes"] == 64
+    assert d["params"] == {"kd": [3], "ks": [3], "alpha": [], "f0": []}
+    assert d["info"] == {"l2": 0.031, "converged": True} and d["stored_bytes"] == 64
+    _, out, _ = run(capsys, "info", str(path))
+    r = rows(out)
+    assert r["family"] == "lambert+ggx" and r["parameters"] == "8 reals, 64 bytes as float64"
+    assert r["shapes"] == "kd (3,), ks (3,), alpha (), f0 ()"
+
+
+def test_hybrid(tmp_path, rng, capsys):
+    h = Hybrid(_ggx(), _matrix(rng, order=2, quantity="f"), {"l2": 0.02, "source": "x"})
+    d = described(capsys, save(h, tmp_path / "h.h5"))
+    assert d["content"] == "hybrid" and d["info"] == {"l2": 0.02, "source": "x"}
+    assert d["lobe"]["family"] == "lambert+ggx" and d["lobe"]["nparams"] == 8
+    assert d["residual"]["basis"] == "HemiZernike(2)" and d["residual"]["quantity"] == "f"
+    assert d["nbytes"] == h.nbytes
+    _, out, _ = run(capsys, "info", str(tmp_path / "h.h5"))
+    lines = out.splitlines()
+    assert "scatmodes hybrid (schema 3" in lines[0]
+    assert lines.index("lobe:") < lines.index("residual:")
+    r = rows(out)
+    assert r["family"] == "lambert+ggx" and r["basis"].startswith("HemiZernike(2)")
+
+
+def test_schema_2_file(tmp_path, rng, capsys):
+    cm = _matrix(rng, channels=1)
+    path = save(cm, tmp_path / "old.h5")
+    with h5py.File(path, "r+") as f:  # relabelled: what a schema 2 reader accepts
+        f.attrs["schema_version"] = 2
+        del f.attrs["content"]
+    d = described(capsys, path)
+    assert d["schema_version"] == 2 and d["content"] == "coefficients"
+
+
+def test_checkpoint(tmp_path, capsys):
+    from project.microgeometry import GaussianSurface, simulate
+
+    ckpt = tmp_path / "run.ckpt"
+    simulate(GaussianSurface(1.0, 6.5, resolution=16, seed=0), basis.HemiZernike(2),
+             rays=800, seed=3, checkpoint=ckpt)
+    d = described(capsys, ckpt)
+    assert d["kind"] == "checkpoint" and d["rays"] == 800 and d["directions_done"] == 100
+    assert d["basis"] == "HemiZernike(2)" and d["matrix_size"] == 6 and d["seeds"] == [3]
+    assert d["energy"]["reflected"] == pytest.approx(800.0)  # lossless mirror facets
+    assert d["surface"].startswith("GaussianSurface(sigma=1, tau=6.5")
+    _, out, _ = run(capsys, "info", str(ckpt))
+    assert rows(out)["rays traced"].startswith("800 in 1 chunk(s), ")
+    with h5py.File(ckpt, "r+") as f:
+        del f["rays"]
+    line = one_line_error(capsys, "info", str(ckpt))
+    assert f"{str(ckpt)!r} is a damaged simulation checkpoint: dataset 'rays' is missing" in line
+
+
+def test_errors(tmp_path, rng, capsys):
+    missing = tmp_path / "none.h5"
+    assert one_line_error(capsys, "info", str(missing)).endswith(
+        f"file {str(missing)!r} does not exist")
+    text = tmp_path / "notes.txt"
+    text.write_text("hello")
+    assert f"{str(text)!r} is not an HDF5 file" in one_line_error(capsys, "info", str(text))
+    foreign = tmp_path / "foreign.h5"
+    with h5py.File(foreign, "w") as f:
+        f["x"] = np.arange(3)
+    assert "is an HDF5 file but not a scatmodes file" in one_line_error(capsys, "info",
+                                                                        str(foreign))
+    path = save(_matrix(rng), tmp_path / "m.h5")
+    with h5py.File(path, "r") as f:
+        at = f["blocks/m0"].id.get_chunk_info(0).byte_offset
+    data = bytearray(path.read_bytes())
+    data[at] ^= 1
+    path.write_bytes(bytes(data))
+    line = one_line_error(capsys, "info", str(path))
+    assert f"{str(path)!r} is damaged: /blocks/m0 cannot be read (its Fletcher-32" in line
+    assert "directory" in one_line_error(capsys, "info", str(tmp_path))
+    assert "--json describes a FILE" in one_line_error(capsys, "info", "--json")
+
+
+def test_console_exit_status(tmp_path):
+    r = subprocess.run([sys.executable, "-m", "compress.cli", "info", str(tmp_path / "x.h5")],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.strip() == (f"scatmodes info: error: file {str(tmp_path / 'x.h5')!r} does "
+                                "not exist")
