@@ -4,7 +4,7 @@
 
 - a :class:`basis.CoefficientMatrix`;
 - a :class:`project.FittedModel` (or any model with ``family`` and ``params``, such as
-  :class:`project.FactoredLobe`; it is read back as a :class:`project.FittedModel`);
+  :class:`project.factored.FactoredLobe`; it is read back as a :class:`project.FittedModel`);
 - a :class:`compress.Hybrid` whose lobe is such a model.
 
 Schema version 3
@@ -55,8 +55,15 @@ attribute ``shape`` (integer array, empty for a scalar) gives the parameter's sh
 A hybrid (``content = "hybrid"``) has the root attribute ``info`` (``Hybrid.info``), the
 model group ``lobe`` and the matrix group ``residual``.
 
-Every dataset carries an HDF5 Fletcher-32 checksum (``fletcher32=True``), which HDF5 checks
-on every read: changed bytes in the stored numbers are detected instead of returned. Group
+Checksums: every dataset carries an HDF5 Fletcher-32 checksum (``fletcher32=True``), which
+HDF5 checks on every read, and the file is written in the format of HDF5 1.10 (h5py
+``libver=("v110", "latest")``; readable by HDF5 1.10 and later): superblock version 3,
+version-2 object headers, fractal heaps and chunk indices, each with a Jenkins lookup3
+checksum that HDF5 verifies before parsing the structure (HDF5 File Format Specification
+3.0). Text attributes are fixed-length UTF-8 strings, held in the object header (h5py's
+default variable-length strings live in the global heap, which has no checksum; h5py reads
+fixed-length ones as ``bytes``). So changed bytes anywhere in the metadata or the numbers
+are detected instead of returned. Group
 ``provenance`` of the root repeats, as plain attributes for ``h5dump`` readers, the scalar
 string and number entries of the top-level ``info`` among ``source``, ``method``,
 ``truncation_error``, ``error_estimate``, ``rel_error``, ``l2``, ``log`` and ``seconds``.
@@ -80,10 +87,10 @@ too narrow for the values, and model parameters that :class:`project.FittedModel
 
 Reading
 -------
-:func:`load` never returns something other than what was saved: every problem with a file
-raises ``ValueError`` naming the file and what is wrong (``FileNotFoundError`` and other
-``OSError`` only for a file that is missing or unreadable). Before reading any numbers it
-checks, from the metadata alone,
+:func:`load` returns what was saved or raises: every problem with a file raises
+``ValueError`` naming the file and what is wrong (``FileNotFoundError`` and other ``OSError``
+only for a file that is missing or unreadable), never another exception. Before reading any
+numbers it checks, from the metadata alone,
 
 - the HDF5 signature, the ``format`` attribute (foreign files) and the schema version
   (versions other than :data:`READABLE_VERSIONS`: upgrade the library);
@@ -100,17 +107,22 @@ checks, from the metadata alone,
 
 and then, reading the numbers (checksums verified by HDF5): every value finite, and the
 coefficients' sum of squares finite (by orthonormality, the squared L2 norm of the
-represented function, so its evaluations cannot overflow either); the ``info`` JSON and its
+represented function, so its evaluations stay finite too); the ``info`` JSON and its
 tags well formed; and the rebuilt object accepted by its constructor (e.g. FittedModel's
 parameter ranges, matching channels of a hybrid's parts).
 
 Older versions
 --------------
 Each version has its own reader in ``_READERS``. Schema version 2 is version 3 restricted
-to ``content = "coefficients"`` without the ``content`` attribute and without checksums.
+to ``content = "coefficients"`` without the ``content`` attribute and without checksums, in
+h5py's default (oldest) file format with variable-length strings. The structural checks
+apply to such files too, but changed bytes among their numbers go undetected, and on some
+damaged metadata of that format the HDF5 library itself may fail hard; saving them again
+gives them checksums.
 Schema version 1 (written by scatmodes 0.1.0 before the basis kinds had one vocabulary)
 differs from 2 only in naming the hemisphere harmonics ``basis_kind = "hemi_sh"`` with a
-separate ``basis_parity`` attribute (``"odd"`` or ``"even"``; ``"all"`` for the other kinds).
+separate ``basis_parity`` attribute (``"odd"`` or ``"even"``; ``"all"`` for the other kinds)
+and in the ``dtype`` attribute being optional.
 """
 
 from __future__ import annotations
@@ -164,7 +176,8 @@ def save(obj: Any, path: str | os.PathLike, *, dtype: str = "float64") -> Path:
     ----------
     obj : basis.CoefficientMatrix, project.FittedModel or compress.Hybrid
         A model may be any object with ``family`` (a family of :func:`project.fit_model`)
-        and ``params`` (dict of str to arrays), such as :class:`project.FactoredLobe`; so may
+        and ``params`` (dict of str to arrays), such as
+        :class:`project.factored.FactoredLobe`; so may
         a hybrid's lobe. Both are read back as :class:`project.FittedModel`.
     path : str or os.PathLike
         Target file; its directory must exist. An existing file is replaced atomically.
@@ -218,7 +231,7 @@ def save(obj: Any, path: str | os.PathLike, *, dtype: str = "float64") -> Path:
             raise TypeError(f"the lobe of this Hybrid, {type(obj.lobe).__name__}, has no family "
                             "and params, so it cannot be stored: save hybrids whose lobe is "
                             "fitted (compress.hybrid with a family name, project.fit_model, "
-                            "project.FactoredLobe)")
+                            "project.factored.FactoredLobe)")
         parts = {"": _Part({"info": _info_text(obj.info, "Hybrid.info")}, {}, {}),
                  "lobe": _model_part(obj.lobe, dtype, "the hybrid's lobe"),
                  "residual": _matrix_part(obj.residual, dtype, "the hybrid's residual")}
@@ -267,7 +280,8 @@ def load(path: str | os.PathLike) -> Any:
     Raises
     ------
     FileNotFoundError
-        The file does not exist (``IsADirectoryError``: it is a directory; other ``OSError``:
+        The file does not exist (``IsADirectoryError``: it is a directory;
+        ``BlockingIOError``: another process has it open for writing; other ``OSError``:
         it cannot be read).
     ValueError
         Anything wrong with the content, always naming the file: not HDF5, truncated or
@@ -290,6 +304,11 @@ def load(path: str | os.PathLike) -> Any:
     try:
         f = h5py.File(p, "r")
     except _LOW_LEVEL as exc:
+        # HDF5 file locking, and the superblock's mark of a file open for writing
+        if "unable to lock file" in str(exc) or "already open for write" in str(exc):
+            raise BlockingIOError(f"{name} is open for writing in another process; try again "
+                                  "when it is done (if no process has it open, a writer "
+                                  "crashed: 'h5clear -s FILE' removes the mark)") from None
         raise ValueError(f"{name} is a damaged or truncated HDF5 file and cannot be opened "
                          f"({_one_line(exc)}); write it again") from None
     try:

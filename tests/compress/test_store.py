@@ -761,3 +761,27 @@ def test_fuzz_damaged_files_never_load_wrong(tmp_path, rng):
     assert total > 400
     assert outcomes["flipped bytes"]["ValueError"] > 100
     assert outcomes["h5py edits"]["ValueError"] > 200
+
+
+def test_file_open_for_writing_elsewhere(tmp_path, rng):
+    # a writer in another process holds the file (HDF5 file locking and the superblock's
+    # open-for-writing mark): load says so instead of calling the file damaged; killed, the
+    # writer leaves the mark behind, and the message says how to clear it
+    import subprocess
+    import sys
+
+    path = _zernike3(tmp_path, rng)
+    with subprocess.Popen(
+            [sys.executable, "-c", f"import h5py, time; f = h5py.File({str(path)!r}, 'r+'); "
+                                   "print('open', flush=True); time.sleep(60)"],
+            stdout=subprocess.PIPE, text=True) as holder:
+        try:
+            assert holder.stdout.readline().strip() == "open"
+            with pytest.raises(BlockingIOError, match="is open for writing in another "
+                                                      "process; try again"):
+                load(path)
+        finally:
+            holder.kill()
+    with pytest.raises(BlockingIOError, match="a writer crashed: 'h5clear -s FILE' removes "
+                                              "the mark"):
+        load(path)
