@@ -482,9 +482,9 @@ def fit(
             f"fit is underdetermined: {samples} samples (of weight > 0) for {unknowns} "
             f"unknowns ({kind} {basis!r}); lower the order, use isotropic=True, add samples, "
             "or pass regularization='auto' or > 0")
-    copies = _DESIGN_COPIES if how == "given" and pen == "identity" else _AUTO_COPIES
-    check_bytes(8.0 * copies * samples * unknowns,
-                f"fitting {unknowns} unknowns to {samples} samples (design matrix and its SVD)")
+    check_bytes(_fit_bytes(samples, unknowns, basis.size, how, pen),
+                f"fitting {unknowns} unknowns to {samples} samples (design matrix, its SVDs "
+                "and square matrices of the unknowns)")
     if quantity == "f_cos":
         y = y * (wi[:, 2] * wo[:, 2])[:, None]
     sw = np.sqrt(w)
@@ -550,6 +550,23 @@ def fit(
         "basis": repr(basis),
     }
     return _unpack(z, basis, lay, isotropic, scalar, quantity, info)
+
+
+def _fit_bytes(samples: int, unknowns: int, size: int, how: str, pen: str) -> float:
+    """Return the peak bytes of :func:`fit`, for the MAX_BYTES check before it allocates.
+
+    The design matrix and its copies (``_DESIGN_COPIES`` or ``_AUTO_COPIES``), the basis
+    values at both directions of every sample, the right singular vectors of each SVD (full
+    data and one training fold: rank x unknowns each), and for the degree penalty the
+    (unknowns, unknowns) matrices of the regularised condition number (the penalty's
+    diagonal, the stacked system and its copy inside svdvals). With fewer samples than
+    unknowns (allowed when regularised) the square matrices dominate.
+    """
+    rank = min(samples, unknowns)
+    copies = _DESIGN_COPIES if how == "given" and pen == "identity" else _AUTO_COPIES
+    square = (3 * unknowns + 2 * rank) * unknowns if pen == "degree" else 0
+    return 8.0 * (copies * samples * unknowns + 2 * samples * (size + 1) + 2 * rank * unknowns
+                  + square)
 
 
 def _svd(a: NDArray) -> tuple[NDArray, NDArray, NDArray]:

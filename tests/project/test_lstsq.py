@@ -698,6 +698,26 @@ def test_fit_input_errors(unit_vectors, monkeypatch):
         fit(wi, wo, v, zb)
 
 
+def test_fit_memory_check_counts_the_square_matrices(monkeypatch):
+    # few samples, many unknowns, degree penalty: the (unknowns, unknowns) matrices of the
+    # regularised condition number dominate the design; before, only the design was counted
+    rng = np.random.default_rng(3)
+    w = rng.normal(size=(400, 3))
+    w[:, 2] = np.abs(w[:, 2])
+    w /= np.linalg.norm(w, axis=1, keepdims=True)
+    with pytest.raises(MemoryError, match=r"fitting 45526 unknowns to 200 samples .* would "
+                                          r"need 47 GiB"):
+        fit(w[:200], w[200:], np.full(200, 0.1), HemiZernike(100), regularization="auto")
+    # the same at a small order, with the limit between the design alone and the whole
+    zb = HemiZernike(8)
+    u = fitmod.unknowns(zb).count
+    design = 8.0 * fitmod._AUTO_COPIES * 20 * u
+    monkeypatch.setattr("basis.validation.MAX_BYTES", design * 1.5)
+    assert fitmod._fit_bytes(20, u, zb.size, "auto", "degree") > design * 1.5
+    with pytest.raises(MemoryError, match=rf"fitting {u} unknowns to 20 samples"):
+        fit(w[:20], w[200:220], np.full(20, 0.1), zb, regularization="auto")
+
+
 # -- tables -------------------------------------------------------------------------------------
 def test_read_table_round_trip(tmp_path, rng):
     n = 12
