@@ -16,9 +16,12 @@ Long work shows a tqdm progress bar on stderr when stderr is a terminal (``--pro
 from __future__ import annotations
 
 import argparse
+import contextlib
 import inspect
 import os
+import signal
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -376,9 +379,19 @@ def _fit(args: argparse.Namespace) -> int:
     from compress import save
     from project import fit, read_table
 
-    out = _output_file(args.output)
+    out = _hdf5_output(args.output)
     table = _input_file(args.table, "TABLE")
-    wi, wo, values = read_table(table)
+    try:
+        wi, wo, values = read_table(table)
+    except UnicodeDecodeError as err:
+        byte = err.object[err.start:err.start + 1].hex()
+        raise UserError(f"TABLE {str(table)!r} is not a text table: it holds the byte 0x{byte}, "
+                        f"which is not UTF-8 (a binary file?); give a text file of rows theta_i "
+                        f"phi_i theta_o phi_o value (see 'scatmodes fit --help')") from None
+    except ValueError as err:
+        # read_table names the line; the file is named here
+        raise UserError(err if str(table) in str(err) else f"TABLE {str(table)!r}: {err}") \
+            from None
     b = _basis(args.basis, args.order)
     t0 = time.perf_counter()
     cm = fit(wi, wo, values, b, quantity=args.quantity, isotropic=args.isotropic,
@@ -402,13 +415,47 @@ def _fit(args: argparse.Namespace) -> int:
     return 0
 
 
+#: Suffixes of the HDF5 files that -o writes (compress.save); anything else is refused, so
+#: that "-o result.txt" does not silently produce HDF5 under a text name.
+HDF5_SUFFIXES = (".h5", ".hdf5", ".hdf", ".he5")
+
+
+def _hdf5_output(path: str, name: str = "-o") -> Path:
+    """Check that ``path`` names an HDF5 file by its suffix, then that it can be written."""
+    suffix = Path(path).suffix
+    if suffix.lower() not in HDF5_SUFFIXES:
+        raise UserError(f"{name} {path!r} must end in {', '.join(HDF5_SUFFIXES)}: the command "
+                        f"writes HDF5 (got {'no suffix' if not suffix else repr(suffix)}; e.g. "
+                        f"{name} {Path(path).with_suffix('.h5')})")
+    return _output_file(path, name)
+
+
+def _simulate_quantity(text: str) -> str:
+    if text != "f_cos":
+        raise argparse.ArgumentTypeError(
+            f"simulate supports only f_cos, got {text!r}: Westin's estimator gives the "
+            "coefficients of f cos(theta_i) cos(theta_o); the written matrix still evaluates "
+            "f (CoefficientMatrix.eval divides by the cosines)")
+    return text
+
+
+class _Terminated(SystemExit):
+    """SIGTERM during simulate: simulate saves its checkpoint before this ends the command."""
+
+
+def _raise_terminated(signum: int, frame: Any) -> None:
+    raise _Terminated(128 + signum)
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from compress import save
     from project.microgeometry import Diffuse, GaussianSurface, Mirror, simulate
 
-    out = _output_file(args.output)
+    out = _hdf5_output(args.output)
     if args.checkpoint is not None:
         _output_file(args.checkpoint, "--checkpoint")
+    elif args.checkpoint_interval is not None:
+        raise UserError("--checkpoint-interval applies with --checkpoint PATH")
     if args.resume is not None:
         _input_file(args.resume, "--resume")
     if args.material == "mirror":
@@ -423,8 +470,27 @@ def _simulate(args: argparse.Namespace) -> int:
     surface = GaussianSurface(args.sigma, args.tau, resolution=args.resolution,
                               seed=args.surface_seed, material=material)
     b = _basis(args.basis, args.order)
-    res = simulate(surface, b, rays=args.rays, seed=args.seed, checkpoint=args.checkpoint,
-                   resume=args.resume, progress=_progress(args))
+    interval = 60.0 if args.checkpoint_interval is None else args.checkpoint_interval
+    # SIGTERM (a scheduler's kill) becomes an exception, so that simulate saves the final
+    # checkpoint as it does for Ctrl-C; only the main thread may install handlers
+    main_thread = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGTERM, _raise_terminated) if main_thread else None
+    saved = "" if args.checkpoint is None else (
+        f"; the rays traced so far are saved in {args.checkpoint!r}: continue with --resume "
+        f"{args.checkpoint} --checkpoint {args.checkpoint}")
+    try:
+        res = simulate(surface, b, rays=args.rays, seed=args.seed, checkpoint=args.checkpoint,
+                       checkpoint_interval=interval, resume=args.resume,
+                       progress=_progress(args))
+    except KeyboardInterrupt:
+        print(f"scatmodes simulate: interrupted{saved}", file=sys.stderr)
+        return 130
+    except _Terminated as stop:
+        print(f"scatmodes simulate: terminated (SIGTERM){saved}", file=sys.stderr)
+        return int(stop.code)
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, signal.SIG_DFL if previous is None else previous)
     save(res.matrix, out)
     e = res.energy
     total = e["reflected"] + e["absorbed"] + e["escaped"]
@@ -445,26 +511,36 @@ def _study(args: argparse.Namespace) -> int:
 
     if args.stability:
         return _stability(args)
+    if args.small:
+        raise UserError("--small applies to --stability (the reduced stability atlas); a BRDF "
+                        "study takes a MODEL or --merl, with --orders and --kinds for its size")
     if args.metric not in METRICS:
         raise UserError(f"--metric must be one of {', '.join(METRICS)}, got {args.metric!r}")
     kinds = _kinds(args.kinds)
     orders = _orders(args.orders)
-    out = _output_dir(args.out)
-    brdf = _source(args)
+    brdf = _source(args)  # before the folder: bad input must not leave an empty one behind
     kw: dict[str, Any] = {}
     if args.tol is not None or args.merl is not None:
         kw["tol"] = args.tol if args.tol is not None else 1e-3
-    rows, messages, first = [], [], None
-    pairs = [(k, o) for k in kinds for o in orders]
-    for k, o in _bar(pairs, args, "study", total=len(pairs)):
-        part = study(brdf, k, [o], quantity=args.quantity, smooth=args.smooth, **kw)
-        first = first or part
-        rows += part.rows
-        messages += part.messages
-    st = Study(rows, first.source, first.quantity, first.sampling, messages)
-    text = st.to_markdown()
-    (out / "study.md").write_text(text + "\n", encoding="utf-8")
-    png = st.plot(str(out / "study.png"), metric=args.metric)
+    existed = Path(args.out).is_dir()
+    out = _output_dir(args.out)
+    try:
+        rows, messages, first = [], [], None
+        pairs = [(k, o) for k in kinds for o in orders]
+        for k, o in _bar(pairs, args, "study", total=len(pairs)):
+            part = study(brdf, k, [o], quantity=args.quantity, smooth=args.smooth, **kw)
+            first = first or part
+            rows += part.rows
+            messages += part.messages
+        st = Study(rows, first.source, first.quantity, first.sampling, messages)
+        text = st.to_markdown()
+        (out / "study.md").write_text(text + "\n", encoding="utf-8")
+        png = st.plot(str(out / "study.png"), metric=args.metric)
+    except BaseException:
+        if not existed:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only if still empty: what was written stays
+        raise
     print(text)
     print(f"\nwrote {out / 'study.md'} and {png}")
     return 0
@@ -492,6 +568,8 @@ def _add_basis(p: argparse.ArgumentParser, *, kinds: tuple[str, ...] = KINDS,
                         "full-sphere harmonics (default %(default)s)")
     p.add_argument("--order", type=_order, default=order, metavar="N",
                    help="basis order, inclusive (default %(default)s)")
+    if not quantities:  # the command adds its own --quantity
+        return
     p.add_argument("--quantity", choices=quantities, default=quantity,
                    help="what the matrix represents: f cos(theta_i) cos(theta_o) or f; auto: "
                         "f_cos for the odd harmonics (they vanish on the horizon) and for "
@@ -627,7 +705,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="the Tikhonov penalty: identity (the L2 norm of the fit) or degree "
                         "(high degrees, see project.fit); default degree for the automatic "
                         "choices, identity for a number")
-    f.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
+    f.add_argument("-o", "--output", required=True, metavar="OUT.h5",
+                   help=f"HDF5 file to write ({', '.join(HDF5_SUFFIXES)})")
     f.set_defaults(func=_fit)
 
     s = sub.add_parser(
@@ -654,13 +733,23 @@ def _parser() -> argparse.ArgumentParser:
                    help="mirror facets: refractive index for Fresnel (default: F = 1)")
     s.add_argument("--albedo", type=_nonneg, default=None,
                    help="diffuse facets: albedo (default 1)")
-    _add_basis(s, quantity="f_cos", quantities=("f_cos",))  # Westin's estimator gives f cos cos
+    _add_basis(s, quantities=())
+    s.add_argument("--quantity", type=_simulate_quantity, default="f_cos", metavar="f_cos",
+                   help="what the matrix represents: only f_cos, f cos(theta_i) "
+                        "cos(theta_o), which Westin's estimator gives; the written matrix "
+                        "evaluates f all the same (default %(default)s)")
     s.add_argument("--rays", type=_count, default=1_000_000,
                    help="incident rays, in total when resuming (default %(default)s)")
     s.add_argument("--seed", type=int, default=0, help="seed of the rays (default %(default)s)")
-    s.add_argument("--checkpoint", metavar="PATH", help="save the accumulators here as it runs")
+    s.add_argument("--checkpoint", metavar="PATH",
+                   help="save the accumulators here as it runs, at the end and when "
+                        "interrupted (Ctrl-C, SIGTERM); locked against a second run")
+    s.add_argument("--checkpoint-interval", type=_positive, default=None, metavar="SECONDS",
+                   help="seconds between checkpoints (default 60): at most this much work is "
+                        "lost if the machine fails")
     s.add_argument("--resume", metavar="PATH", help="continue from this checkpoint")
-    s.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
+    s.add_argument("-o", "--output", required=True, metavar="OUT.h5",
+                   help=f"HDF5 file to write ({', '.join(HDF5_SUFFIXES)})")
     _add_progress(s)
     s.set_defaults(func=_simulate)
 

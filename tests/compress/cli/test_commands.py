@@ -404,3 +404,156 @@ def test_study_stability_writes_the_atlas(tmp_path, capsys, monkeypatch):
 def test_study_stability_refuses_a_model(tmp_path, capsys):
     assert main(["study", "Lambert", "--stability", "--out", str(tmp_path)]) == 2
     assert "--stability takes no MODEL" in capsys.readouterr().err
+
+
+# -- issue 14: suffixes, quantities, checkpoints and signals ---------------------------------
+SIM = ["simulate", "--sigma", "1", "--tau", "6.5", "--resolution", "16", "--order", "2"]
+
+
+@pytest.mark.parametrize("argv", [
+    [*SIM, "-o", "{tmp}/x.txt"],
+    [*SIM, "-o", "{tmp}/x"],
+    ["fit", "{tmp}/t.txt", "-o", "{tmp}/x.csv"],
+], ids=["simulate-txt", "simulate-none", "fit-csv"])
+def test_output_suffix_must_be_hdf5(tmp_path, capsys, argv):
+    (tmp_path / "t.txt").write_text("10 0 20 0 0.1\n")
+    argv = [a.format(tmp=tmp_path) for a in argv]
+    line = one_line_error(capsys, *argv)
+    assert "must end in .h5, .hdf5, .hdf, .he5: the command writes HDF5" in line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["t.txt"]
+
+
+def test_hdf5_suffixes_are_accepted(tmp_path, capsys):
+    status, _, err = run(capsys, *SIM, "--rays", "400", "-o", str(tmp_path / "x.HDF5"))
+    assert status == 0, err
+    assert load(tmp_path / "x.HDF5").quantity == "f_cos"
+
+
+def test_simulate_quantity_f_is_refused_with_the_reason(tmp_path, capsys):
+    line = one_line_error(capsys, *SIM, "--quantity", "f", "-o", str(tmp_path / "x.h5"))
+    assert "argument --quantity: simulate supports only f_cos, got 'f': Westin's estimator" in line
+    status, _, err = run(capsys, *SIM, "--quantity", "f_cos", "--rays", "400", "-o",
+                         str(tmp_path / "x.h5"))
+    assert status == 0, err
+
+
+def test_checkpoint_interval(tmp_path, capsys, monkeypatch):
+    import project.microgeometry as mg
+
+    line = one_line_error(capsys, *SIM, "--checkpoint-interval", "5", "-o",
+                          str(tmp_path / "x.h5"))
+    assert "--checkpoint-interval applies with --checkpoint PATH" in line
+    line = one_line_error(capsys, *SIM, "--checkpoint-interval", "0", "-o",
+                          str(tmp_path / "x.h5"))
+    assert "argument --checkpoint-interval: must be a positive number, got '0'" in line
+    seen, real = [], mg.simulate
+
+    def spy(*args, **kw):
+        seen.append(kw["checkpoint_interval"])
+        return real(*args, **kw)
+
+    monkeypatch.setattr(mg, "simulate", spy)
+    for extra, want in [([], 60.0), (["--checkpoint-interval", "2.5"], 2.5)]:
+        status, _, err = run(capsys, *SIM, "--rays", "400", "--checkpoint",
+                             str(tmp_path / "run.ckpt"), *extra, "-o", str(tmp_path / "x.h5"))
+        assert status == 0, err
+        assert seen[-1] == want
+
+
+def test_fit_of_a_binary_file_names_it(tmp_path, capsys):
+    table = tmp_path / "scan.bin"
+    table.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    line = one_line_error(capsys, "fit", str(table), "-o", str(tmp_path / "x.h5"))
+    assert f"TABLE '{table}' is not a text table: it holds the byte 0x89" in line
+    table.write_text("10 0 20 0 0.1\n10 0 95 0 0.1\n")
+    line = one_line_error(capsys, "fit", str(table), "-o", str(tmp_path / "x.h5"))
+    assert f"TABLE '{table}': line 2: theta_o must lie in [0, 90] degrees, got 95" in line
+
+
+def test_study_small_without_stability_is_refused_and_leaves_no_folder(tmp_path, capsys):
+    out = tmp_path / "D"
+    line = one_line_error(capsys, "study", "--small", "--out", str(out))
+    assert "--small applies to --stability" in line
+    assert not out.exists()
+    line = one_line_error(capsys, "study", "--out", str(out))  # no MODEL
+    assert "give a MODEL" in line and not out.exists()
+    line = one_line_error(capsys, "study", "Glossy", "--out", str(out))
+    assert "MODEL must be one of" in line and not out.exists()
+
+
+def test_study_failure_removes_the_folder_it_created(tmp_path, capsys, monkeypatch):
+    import compress
+
+    def boom(*args, **kw):
+        raise ValueError("projection failed")
+
+    monkeypatch.setattr(compress, "study", boom)
+    out = tmp_path / "D"
+    line = one_line_error(capsys, "study", "Lambert", "--param", "albedo=0.5", "--out", str(out))
+    assert "projection failed" in line and not out.exists()
+    out.mkdir()  # a folder the user made stays
+    one_line_error(capsys, "study", "Lambert", "--param", "albedo=0.5", "--out", str(out))
+    assert out.is_dir()
+
+
+def test_simulate_checkpoint_in_use_and_damaged(tmp_path, capsys):
+    from project.microgeometry import estimate
+
+    ckpt = tmp_path / "run.ckpt"
+    with estimate._locked(ckpt):  # private: the lock a running simulate holds
+        line = one_line_error(capsys, *SIM, "--checkpoint", str(ckpt), "-o",
+                              str(tmp_path / "x.h5"))
+    assert f"checkpoint '{ckpt}' is in use by another run (process " in line
+    ckpt.write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(100))
+    line = one_line_error(capsys, *SIM, "--resume", str(ckpt), "-o", str(tmp_path / "x.h5"))
+    assert f"resume file '{ckpt}' is not a readable HDF5 checkpoint" in line
+
+
+_CLI_RUN = """
+import sys
+from pathlib import Path
+from compress.cli import main
+from project.microgeometry import estimate
+real, count = estimate._chunk, []
+def chunk(*args):
+    real(*args)
+    count.append(1)
+    if len(count) == 3:
+        Path(sys.argv[1]).write_text("3 chunks")
+estimate._chunk = chunk
+sys.exit(main(sys.argv[2:]))
+"""
+
+
+@pytest.mark.parametrize("sig, code, word", [(15, 143, "terminated (SIGTERM)"),
+                                             (2, 130, "interrupted")], ids=["TERM", "INT"])
+def test_simulate_signal_saves_a_final_checkpoint(tmp_path, sig, code, word):
+    import signal
+    import time
+    from pathlib import Path
+
+    ckpt, flag = tmp_path / "run.ckpt", tmp_path / "flag"
+    argv = [*SIM, "--rays", "1e9", "--checkpoint", str(ckpt), "--checkpoint-interval", "3600",
+            "-o", str(tmp_path / "x.h5")]
+    root = Path(__file__).resolve().parents[3]
+    with subprocess.Popen([sys.executable, "-c", _CLI_RUN, str(flag), *argv], cwd=root,
+                          stderr=subprocess.PIPE, text=True) as proc:
+        try:
+            deadline = time.time() + 120
+            while not flag.exists() and proc.poll() is None and time.time() < deadline:
+                time.sleep(0.05)
+            assert flag.exists(), proc.stderr.read() if proc.poll() is not None else "timeout"
+            proc.send_signal(signal.Signals(sig))
+            assert proc.wait(60) == code
+            err = proc.stderr.read()
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+    assert err.strip() == (f"scatmodes simulate: {word}; the rays traced so far are saved in "
+                           f"'{ckpt}': continue with --resume {ckpt} --checkpoint {ckpt}")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["flag", "run.ckpt"]
+    import h5py
+
+    with h5py.File(ckpt, "r") as f:
+        # the flag is written inside the third chunk of 4096 directions x 8 rays
+        assert f["rays"][()] >= 2 * 32768 and f["rays"][()] % 32768 == 0
