@@ -386,6 +386,9 @@ class _DSBRDF:
     """
 
     separable = True
+    # the cost valley is flat along lobes that fade out (kappa -> 0 over part of theta_d):
+    # stop on a 1e-6 relative cost decrease (see the module notes), in the log-scale units
+    x_scale, ftol = 1.0, 1e-6
 
     def __init__(self, lobes: int, channels: int) -> None:
         self.lobes = lobes
@@ -1163,7 +1166,7 @@ def _solve(model, g: _Geometry, f: NDArray, w: NDArray, metric: str, k: int,
         res_fn, jac_fn, row = _objective(sub, g, f[:, ch:ch + 1], w, metric)
         x0 = sub.start(g, f[:, ch:ch + 1], row, k, rng)
         runs.append(least_squares(res_fn, x0, jac=jac_fn, bounds=sub.bounds, method="trf",
-                                  x_scale="jac", max_nfev=max_nfev))
+                                  x_scale=sub.x_scale, ftol=sub.ftol, max_nfev=max_nfev))
     jac = np.zeros((g.n, c, model.p))
     for ch, r in enumerate(runs):
         jac[:, ch, ch * per:(ch + 1) * per] = r.jac

@@ -144,3 +144,26 @@ def test_markdown_and_select():
     assert "| 2 | n/a |" in a.to_markdown()
     with pytest.raises(ValueError, match="table must be 'main'"):
         a.select("other")
+
+
+def test_fit_stability():
+    """Item 6 on a one-channel glossy Cook-Torrance, 4 restarts on 512 pairs: the costs per
+    case are those fit_model reports (recomputed here for lambert+ggx), ordered, and the
+    fractions follow from them. Measured: lambert+ggx and rr8807 reach one minimum from all
+    4 starts (relative spread < 1e-9), so at_best = 1 is asserted for them."""
+    from project import fit_model
+
+    cases = (("lafortune", 1), ("lambert+ggx", None), ("dsbrdf", 1), ("rr8807", None))
+    a = st.fit_stability(cases, restarts=4, n=512, error_n=1024, channels=1)
+    assert [r["case"] for r in a.rows] == ["lafortune/1", "lambert+ggx", "dsbrdf/1", "rr8807"]
+    assert [r["nparams"] for r in a.rows] == [4, 4, 12, 7]
+    for r in a.rows:
+        assert r["cost_min"] <= r["cost_median"] <= r["cost_max"]
+        assert 0.25 <= r["at_best"] <= r["near_best"] <= 1.0
+        assert len(a.select("restarts", case=r["case"])) == 4
+    fit = fit_model(st._glossy_target(1), "lambert+ggx", n=512, error_n=1024, restarts=4)
+    got = np.sort(a.column("cost", "restarts", case="lambert+ggx"))
+    np.testing.assert_allclose(got, np.sort(fit.info["cost"]), rtol=1e-12)
+    assert a.facts["at_best@lambert+ggx"] == 1.0 and a.facts["at_best@rr8807"] == 1.0
+    assert a.facts["spread@rr8807"] < 1e-6
+    assert "restarts at the best" in a.to_markdown()
