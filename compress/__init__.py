@@ -12,6 +12,7 @@ from .evaluate import FastEvaluator, evaluate
 from .hybrid import Hybrid, hybrid
 from .render import render_sphere, tonemap
 from .scene import Environment, ScenePlan, for_scene, select_order
+from .selection import NoCandidateError, select
 from .store import load, save
 from .study import KINDS, METRICS, Study, errors, make_basis, pareto_front, reference_samples, study
 from .truncate import (
@@ -28,6 +29,7 @@ from .truncate import (
 __all__ = [
     "KINDS",
     "METRICS",
+    "NoCandidateError",
     "Environment",
     "FastEvaluator",
     "Hybrid",
@@ -47,6 +49,7 @@ __all__ = [
     "render_sphere",
     "ringing",
     "save",
+    "select",
     "select_order",
     "smooth",
     "smoothing_factors",

@@ -83,7 +83,8 @@ from scipy.stats import qmc
 
 from basis.validation import nonneg_int
 
-__all__ = ["PairSamples", "brdf_errors", "log_rms", "peak_resolving_pairs", "relative_l2"]
+__all__ = ["PairSamples", "brdf_errors", "log_rms", "peak_resolving_pairs", "relative_l2",
+           "value_errors"]
 
 #: Default lobe widths (GGX alpha of the half-vector lobes about the mirror direction).
 DEFAULT_WIDTHS = (0.02, 0.08, 0.3)
@@ -500,13 +501,37 @@ def brdf_errors(reference_brdf: object, approx: object, samples: PairSamples) ->
     if not isinstance(samples, PairSamples):
         raise TypeError(f"samples must be a PairSamples (from peak_resolving_pairs), got "
                         f"{type(samples).__name__}")
-    f = _evaluate(reference_brdf, "reference_brdf", samples)
-    g = _evaluate(approx, "approx", samples)
+    return value_errors(_evaluate(reference_brdf, "reference_brdf", samples),
+                        _evaluate(approx, "approx", samples), samples)
+
+
+def value_errors(f: ArrayLike, f_hat: ArrayLike, samples: PairSamples) -> dict:
+    """Return the errors of :func:`brdf_errors` from values evaluated at ``samples``.
+
+    For comparing many approximations with one reference: evaluate the reference once.
+
+    Parameters
+    ----------
+    f, f_hat : (n,) or (n, channels) array_like of float
+        Reference and approximation (1/sr) at the n pairs of ``samples``; ``f_hat`` may
+        have one channel, which then stands for all.
+    samples : PairSamples
+
+    Returns
+    -------
+    dict
+        ``"l2"``, ``"log"`` and ``"l2_stderr"``, as :func:`brdf_errors`.
+    """
+    if not isinstance(samples, PairSamples):
+        raise TypeError(f"samples must be a PairSamples (from peak_resolving_pairs), got "
+                        f"{type(samples).__name__}")
+    f = _values(f, "f", len(samples))
+    g = _values(f_hat, "f_hat", len(samples))
     if g.shape[1] == 1 and f.shape[1] > 1:
         g = np.broadcast_to(g, f.shape)
     if f.shape != g.shape:
-        raise ValueError(f"reference_brdf and approx must have the same number of channels, "
-                         f"got {f.shape[1]} and {g.shape[1]}")
+        raise ValueError(f"the reference and the approximation must have the same number of "
+                         f"channels, got {f.shape[1]} and {g.shape[1]}")
     cc = (samples.wi[:, 2] * samples.wo[:, 2])[:, None]
     err, se = _l2_with_stderr(f * cc, g * cc, samples)
     worst = int(np.argmax(err))

@@ -785,6 +785,10 @@ def _parser() -> argparse.ArgumentParser:
     _add_progress(st)
     st.set_defaults(func=_study)
 
+    from .benchmark import add_parser as add_benchmark
+
+    add_benchmark(sub, fmt, _add_progress)
+
     i = sub.add_parser("info", formatter_class=fmt,
                        help="versions, threads, limits, models; or what FILE holds",
                        description="Without FILE: versions, threads, basis limits, basis kinds "

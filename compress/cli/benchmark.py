@@ -1,0 +1,60 @@
+"""``scatmodes benchmark merl DIR``: compress.select over a folder of MERL files."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+__all__ = ["add_parser"]
+
+
+def add_parser(sub: argparse._SubParsersAction, fmt: type, progress: callable) -> None:
+    """Register ``benchmark`` (with its one target, ``merl``) on the subcommand parser."""
+    b = sub.add_parser(
+        "benchmark", formatter_class=fmt,
+        help="the smallest representation of every MERL material within a tolerance",
+        description="Runs compress.select on every MERL .binary file of DIR (one process "
+                    "per material) and writes OUT/materials.csv (per material, for each "
+                    "tolerance: family, storage type, bytes, l2 and log errors, and the image "
+                    "error of lit-sphere renders), OUT/candidates.csv, OUT/pareto.png (bytes "
+                    "against error per family, published sizes marked) and OUT/summary.json. "
+                    "Finished materials are kept in OUT/materials/, so a stopped run resumes.",
+        epilog="examples:\n  scatmodes benchmark merl merl-folder --out bench --workers 2\n"
+               "  scatmodes benchmark merl merl-folder --materials blue-acrylic,gold-paint")
+    b.add_argument("target", choices=("merl",), help="what to benchmark (MERL files)")
+    b.add_argument("folder", metavar="DIR", help="folder of MERL .binary files")
+    b.add_argument("--out", default="scatmodes-benchmark", metavar="OUT",
+                   help="output folder, created if missing (default %(default)s)")
+    b.add_argument("--tols", default="0.05,0.10",
+                   help="comma-separated l2 tolerances (default %(default)s)")
+    b.add_argument("--workers", type=int, default=2,
+                   help="worker processes, one material each (default %(default)s)")
+    b.add_argument("--materials", default=None,
+                   help="comma-separated material names (default: every file in DIR)")
+    b.add_argument("--error-pairs", type=int, default=1 << 16,
+                   help="pairs of the peak-resolving error estimate (default %(default)s)")
+    progress(b)
+    b.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the benchmark and print the summary."""
+    from ..benchmark import benchmark_merl
+    from .commands import _progress
+
+    try:
+        tols = [float(t) for t in args.tols.split(",")]
+    except ValueError:
+        raise ValueError(f"--tols must be comma-separated numbers, got {args.tols!r}") from None
+    if args.workers < 1:
+        raise ValueError(f"--workers must be >= 1, got {args.workers}")
+    names = None if args.materials is None else \
+        [n.strip() for n in args.materials.split(",") if n.strip()]
+    benchmark_merl(args.folder, args.out, tols=tols, workers=args.workers, materials=names,
+                   error_n=args.error_pairs, progress=_progress(args))
+    summary = json.loads((Path(args.out) / "summary.json").read_text())
+    print(json.dumps(summary, indent=2))
+    print(f"wrote {Path(args.out) / 'materials.csv'}, candidates.csv, pareto.png, "
+          "summary.json")
+    return 0

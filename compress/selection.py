@@ -1,0 +1,449 @@
+"""The smallest representation of a BRDF that meets an error tolerance: :func:`select`.
+
+Candidates of three forms compete, each at several storage precisions:
+
+- ``"modal"``: a coefficient matrix in one of the bases of :mod:`basis` (a kind and an
+  order, optionally a low-rank truncation), projected by :func:`project.project`;
+- ``"model"``: a fitted model of :func:`project.fit_model` (a parametric family, or the
+  tabulated ``"factored"`` family at a rank and table size);
+- ``"hybrid"``: a fitted lobe plus a modal residual (:func:`compress.hybrid`).
+
+Bytes are the stored reals times the size of the storage type (``float16``, ``float32``
+or ``float64``: what ``compress.save(..., dtype=...)`` writes, the header aside). Each
+candidate's error is measured after rounding to its storage type, against the BRDF, on
+one set of pairs of :func:`project.sampling.peak_resolving_pairs` -- half uniform over
+H x H, half concentrated about the mirror direction -- so a sharp specular peak is
+resolved, grazing configurations are included, and the errors of all candidates are
+paired (measured on the same pairs, so their differences are far more precise than their
+standard errors). The pairs are independent of every fit.
+
+Candidates are built in order of increasing (predicted) bytes, and building stops once
+the next one could not be smaller than the smallest that already meets the tolerance: the
+result is the smallest in the whole list, without fitting what cannot win. The table in
+``info["candidates"]`` says for each one whether it was measured or why not.
+
+Why the three forms: a narrow specular peak holds almost all of the L2 norm of a glossy
+material, which truncated expansions resolve only at orders far beyond their size budget
+(above 90 % error at order 24 on metals and plastics), while a few kilobytes of tables in
+the half/difference angles of Rusinkiewicz (1998) hold it; broad materials (fabrics,
+matte paints) are often smallest as a low-order expansion.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+import warnings
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+import basis
+import project
+from basis import CoefficientMatrix
+from basis.validation import as_directions, choice, nonneg_int
+from project.sampling import peak_resolving_pairs, value_errors
+
+from .hybrid import Hybrid
+from .hybrid import hybrid as make_hybrid
+from .scene import Environment
+from .truncate import PRECISIONS, lowrank, precision, unique_coefficients
+
+__all__ = ["DEFAULT_CANDIDATES", "NoCandidateError", "select"]
+
+FORMS = ("modal", "model", "hybrid")
+METRICS = ("l2", "log")
+#: The default candidates: parametric lobes, a ladder of factored tables, low orders of
+#: the Zernike basis (broad materials) and factored lobes with a Zernike residual.
+DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
+    {"form": "model", "family": "lambert+ggx"},
+    {"form": "model", "family": "factored", "rank": 1, "bins": (32, 24)},
+    {"form": "model", "family": "factored", "rank": 2, "bins": (32, 24)},
+    {"form": "model", "family": "factored", "rank": 3, "bins": (24, 16, 8)},
+    {"form": "model", "family": "factored", "rank": 4, "bins": (32, 24, 8)},
+    {"form": "model", "family": "factored", "rank": 5, "bins": (32, 24, 8)},
+    {"form": "model", "family": "factored", "rank": 6, "bins": (40, 24, 8)},
+    {"form": "model", "family": "factored", "rank": 8, "bins": (48, 32, 8)},
+    {"form": "modal", "kind": "zernike", "order": 4},
+    {"form": "modal", "kind": "zernike", "order": 8},
+    {"form": "modal", "kind": "zernike", "order": 12},
+    {"form": "hybrid", "family": "factored", "rank": 4, "bins": (32, 24, 8),
+     "kind": "zernike", "order": 4},
+    {"form": "hybrid", "family": "factored", "rank": 6, "bins": (40, 24, 8),
+     "kind": "zernike", "order": 6},
+)
+_FIT_KEYS = frozenset(project.fitting.FACTORED_OPTIONS) | {"restarts", "lobes", "n",
+                                                             "max_nfev"}
+_KEYS = {"modal": {"kind", "order", "rank"},
+         "model": {"family"} | _FIT_KEYS,
+         "hybrid": {"family", "kind", "order"} | _FIT_KEYS}
+
+
+class NoCandidateError(ValueError):
+    """No candidate of :func:`select` met the tolerance; ``candidates`` holds the table."""
+
+    def __init__(self, message: str, candidates: list[dict[str, Any]]) -> None:
+        super().__init__(message)
+        self.candidates = candidates
+
+
+@dataclass
+class _Build:
+    """One candidate structure (everything but the storage type) and how to make it."""
+
+    spec: dict[str, Any]
+    label: str
+    bytes_per_real: int | None  # stored reals, or None when unknown before building
+    dtypes: tuple[str, ...]
+    rows: list[dict[str, Any]] = field(default_factory=list)
+
+    def bytes(self, dtype: str) -> int | None:
+        n = self.bytes_per_real
+        return None if n is None else n * np.dtype(dtype).itemsize
+
+
+def select(brdf: Any, tol: float, *, metric: str = "l2",
+           candidates: Iterable[Mapping[str, Any]] | None = None,
+           scene: Mapping[str, Any] | None = None,
+           dtypes: Iterable[str] = ("float16", "float32", "float64"),
+           error_n: int = 1 << 16, seed: int = 2027, exhaustive: bool = False,
+           progress: bool = False) -> Any:
+    """Return the representation of ``brdf`` with the fewest bytes whose error is <= ``tol``.
+
+    Parameters
+    ----------
+    brdf : BRDF
+        Any object with ``eval(wi, wo)``, ``channels`` and ``isotropic`` returning finite
+        values >= 0: an analytic model, :func:`project.measured.read_merl`, ...
+    tol : float
+        Tolerance, > 0, on ``metric`` (or on the radiance error with ``scene``).
+    metric : {"l2", "log"}
+        ``"l2"``: relative L2 error of q = f cos(theta_i) cos(theta_o) over H x H, the
+        largest over the channels; ``"log"``: RMS of log(1 + f cos(theta_i)) differences
+        (:mod:`project.sampling`).
+    candidates : iterable of dict, optional
+        Each a dict with ``"form"`` (``"modal"``, ``"model"`` or ``"hybrid"``) and:
+        modal: ``"kind"`` (one of :data:`basis.KINDS`), ``"order"``, optionally ``"rank"``
+        (:func:`compress.lowrank`; bytes count the eigen-terms, one eigenvalue and one
+        vector each); model: ``"family"`` and options of :func:`project.fit_model`
+        (``"rank"``, ``"bins"``, ``"restarts"``, ...); hybrid: ``"family"``, its options,
+        ``"kind"`` and ``"order"`` of the residual. Optionally ``"dtypes"``, overriding
+        ``dtypes``. Default :data:`DEFAULT_CANDIDATES`.
+    scene : dict, optional
+        ``{"lights": Environment or (n, 3) directions, "views": (m, 3) directions}``, and
+        optionally ``"light_weights"`` (for directions) and ``"resolution"`` (of the latlong
+        grid an SH environment is sampled on, default 128 rows): measure each candidate
+        by the radiance it reflects towards the views under those lights
+        (:meth:`Environment.radiance`), relative RMS over the views, largest over the
+        channels -- only what the scene can see counts. ``metric`` is then reported but
+        does not decide.
+    dtypes : iterable of str
+        Storage types tried for every candidate (of :data:`compress.truncate.PRECISIONS`).
+    error_n : int
+        Pairs of the error estimate (:func:`project.sampling.peak_resolving_pairs`).
+    seed : int
+        Seeds the error pairs (fits use their own seeds, so the errors are independent).
+    exhaustive : bool
+        Build and measure every candidate, also those that cannot be the smallest (for
+        charts of bytes against error).
+    progress : bool
+        Print one line per candidate built.
+
+    Returns
+    -------
+    basis.CoefficientMatrix, project.FittedModel or compress.Hybrid
+        Rounded to its storage type (held as float64). ``info`` gains ``"selected"`` (its
+        row of the table), ``"bytes"``, ``"dtype"`` and ``"candidates"``: one dict per
+        candidate and storage type with ``label``, ``form``, ``candidate`` (its dict, to
+        pass again as ``candidates=[...]``), ``family`` (the model family, or the basis
+        kind of a modal candidate), ``dtype``, ``bytes``, ``l2``,
+        ``log``, ``l2_stderr``, ``scene`` (with ``scene=``), ``error`` (what decides),
+        ``meets``, ``seconds`` (to build) and ``status`` (``"measured"``,
+        ``"skipped: ..."`` or ``"failed: ..."``).
+
+    Raises
+    ------
+    NoCandidateError
+        A ValueError: no candidate meets ``tol``; its message names the smallest error
+        reached, its ``candidates`` attribute holds the table.
+    ValueError, TypeError
+        Bad arguments, an unknown candidate form or key, or a BRDF with non-finite or
+        negative values.
+
+    Notes
+    -----
+    Modal candidates are projected on a fixed product rule (``nodes`` of
+    :func:`project.project`, twice the order plus 16 in z, four times plus 32 in azimuth)
+    rather than refined to convergence: on a sharp measured material refinement costs
+    minutes while the candidate loses anyway; an under-resolved projection can only make
+    the candidate's measured error larger, never wrong.
+
+    Examples
+    --------
+    >>> from project.models import CookTorrance
+    >>> ct = CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx", ior=1.5)
+    >>> rep = select(ct, 0.06, error_n=4096, candidates=[
+    ...     {"form": "model", "family": "lambert+ggx", "restarts": 1},
+    ...     {"form": "modal", "kind": "zernike", "order": 8}])
+    >>> rep.family, rep.info["dtype"], rep.info["bytes"]
+    ('lambert+ggx', 'float16', 16)
+    """
+    if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and tol > 0
+            and math.isfinite(tol)):
+        raise ValueError(f"tol must be a positive number, got {tol!r}")
+    metric = choice(metric, "metric", METRICS)
+    dtypes = _dtypes(dtypes)
+    if not callable(getattr(brdf, "eval", None)):
+        raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)), got "
+                        f"{type(brdf).__name__}")
+    channels = nonneg_int(getattr(brdf, "channels", 1), "brdf.channels")
+    builds = [_build_spec(c, channels, dtypes)
+              for c in (DEFAULT_CANDIDATES if candidates is None else list(candidates))]
+    if not builds:
+        raise ValueError("candidates must hold at least one candidate")
+    samples = peak_resolving_pairs(nonneg_int(error_n, "error_n"), seed=seed)
+    f = np.asarray(brdf.eval(samples.wi, samples.wo), dtype=np.float64)
+    if not np.all(np.isfinite(f)) or np.any(f < 0):
+        raise ValueError(f"brdf must return finite values >= 0; {repr(brdf)[:80]} returns "
+                         f"{int(np.sum(~np.isfinite(f)))} non-finite and "
+                         f"{int(np.sum(f < 0))} negative values at the error pairs")
+    judge = _scene_judge(brdf, scene) if scene is not None else None
+
+    # unknown sizes first (cheap parametric fits), then by the smallest size possible
+    def order(b: _Build) -> tuple[int, int]:
+        n = b.bytes(b.dtypes[0])
+        return (0, 0) if n is None else (1, n)
+
+    builds.sort(key=order)
+    best: tuple[int, float, Any, dict] | None = None
+    fits: dict[tuple, Any] = {}  # lobes fitted once, shared by models and hybrids
+    for b in builds:
+        smallest = b.bytes(b.dtypes[0])
+        if best is not None and not exhaustive and smallest is not None \
+                and smallest >= best[0]:
+            b.rows = [_row(b, d, status=f"skipped: at least {b.bytes(d)} bytes, not fewer "
+                                        f"than the {best[0]} of {best[3]['label']}")
+                      for d in b.dtypes]
+            continue
+        start = time.perf_counter()
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", RuntimeWarning)  # a slow fit is measured
+                rep = _make(b.spec, brdf, fits)
+        except (ValueError, RuntimeError, np.linalg.LinAlgError, MemoryError) as e:
+            b.rows = [_row(b, d, status=f"failed: {e}") for d in b.dtypes]
+            continue
+        seconds = time.perf_counter() - start
+        for d in b.dtypes:
+            try:
+                r, nbytes = _rounded(rep, d, b.spec)
+            except ValueError as e:
+                b.rows.append(_row(b, d, status=f"failed: {e}"))
+                continue
+            g = r.eval(samples.wi, samples.wo)
+            err = value_errors(f, g, samples)
+            row = _row(b, d, bytes=nbytes, seconds=seconds, status="measured", **err)
+            if judge is not None:
+                row["scene"] = judge(r)
+            row["error"] = row["scene"] if judge is not None else row[metric]
+            row["meets"] = bool(row["error"] <= tol)
+            b.rows.append(row)
+            if row["meets"] and (best is None or (nbytes, row["error"]) < best[:2]):
+                best = (nbytes, row["error"], r, row)
+        if progress:
+            measured = [r for r in b.rows if r["status"] == "measured"]
+            summary = ", ".join(f"{r['dtype']} {r['bytes']} B {r['error']:.4g}"
+                                for r in measured) or b.rows[-1]["status"]
+            print(f"select: {b.label} ({seconds:.1f} s): {summary}", flush=True)
+    table = [row for b in builds for row in b.rows]
+    table.sort(key=lambda r: (r["bytes"] is None, r["bytes"] or 0, r["label"]))
+    if best is None:
+        done = [r for r in table if r["status"] == "measured"]
+        closest = min(done, key=lambda r: r["error"]) if done else None
+        raise NoCandidateError(
+            f"no candidate meets {'the scene radiance error' if judge else metric} <= "
+            f"{tol:.4g} for {repr(brdf)[:80]}"
+            + (f": the smallest error is {closest['error']:.4g}, {closest['label']} at "
+               f"{closest['bytes']} bytes ({closest['dtype']})" if closest else
+               ": every candidate failed (see .candidates)")
+            + "; add larger candidates or raise the tolerance", table)
+    nbytes, _, rep, row = best
+    rep.info = {**rep.info, "selected": row, "bytes": nbytes, "dtype": row["dtype"],
+                "candidates": table, "tol": tol, "metric": "scene" if judge else metric}
+    return rep
+
+
+# -- candidates ---------------------------------------------------------------------------------
+
+def _dtypes(dtypes: Iterable[str]) -> tuple[str, ...]:
+    if isinstance(dtypes, str):
+        dtypes = (dtypes,)
+    out = tuple(sorted({choice(d, "dtypes", PRECISIONS) for d in dtypes},
+                       key=lambda d: np.dtype(d).itemsize))
+    if not out:
+        raise ValueError(f"dtypes must name at least one of {PRECISIONS}")
+    return out
+
+
+def _build_spec(c: Mapping[str, Any], channels: int, dtypes: tuple[str, ...]) -> _Build:
+    if not isinstance(c, Mapping):
+        raise TypeError(f"each candidate must be a dict with a 'form', got {c!r}")
+    spec = dict(c)
+    form = choice(spec.pop("form", None), "candidate form", FORMS)
+    own = _dtypes(spec.pop("dtypes")) if "dtypes" in spec else dtypes
+    unknown = sorted(set(spec) - _KEYS[form])
+    if unknown:
+        raise ValueError(f"unknown key(s) {unknown} in the {form} candidate {dict(c)}; a "
+                         f"{form} candidate takes {sorted(_KEYS[form])}")
+    need = {"modal": ("kind", "order"), "model": ("family",),
+            "hybrid": ("family", "kind", "order")}[form]
+    missing = [k for k in need if k not in spec]
+    if missing:
+        raise ValueError(f"the {form} candidate {dict(c)} needs {missing}")
+    spec["form"] = form
+    if "kind" in spec:
+        choice(spec["kind"], "candidate kind", tuple(basis.KINDS))
+        spec["order"] = nonneg_int(spec["order"], "candidate order")
+    if "family" in spec:
+        choice(spec["family"], "candidate family", project.fitting.FAMILIES)
+    reals = _reals(spec, channels)
+    label = form + ": " + ", ".join(f"{k}={v}" for k, v in spec.items() if k != "form")
+    return _Build(spec, label, reals, own)
+
+
+def _reals(spec: dict[str, Any], channels: int) -> int | None:
+    """Count the stored reals of a candidate from its structure (None: known once fitted)."""
+    total = 0
+    if spec["form"] in ("model", "hybrid"):
+        lobe = _lobe_reals(spec, channels)
+        if lobe is None:
+            return None
+        total += lobe
+    if spec["form"] in ("modal", "hybrid"):
+        sizes = basis.make_basis(spec["kind"], spec["order"]).azimuthal_blocks().sizes
+        if spec["form"] == "modal" and spec.get("rank") is not None:
+            # an eigen-term stores its eigenvalue and its vector (of its block m); the
+            # largest blocks bound it, so this is an upper bound until measured
+            rank = nonneg_int(spec["rank"], "candidate rank")
+            total += channels * rank * (1 + int(sizes.max()))
+        else:
+            total += channels * int(np.sum(sizes * (sizes + 1) // 2))
+    return total
+
+
+def _lobe_reals(spec: dict[str, Any], channels: int) -> int | None:
+    family, c = spec["family"], channels
+    if family in ("lambert+ggx", "lambert+beckmann"):
+        return 2 * c + 2
+    if family == "lafortune":
+        lobes = int(spec.get("lobes", 1))
+        return c + lobes * (c + 2)
+    if family != "factored":
+        return None
+    rank = int(spec.get("rank", 4))
+    bins = tuple(spec.get("bins", (32, 24, 8)))
+    color = spec.get("color", "weights") if c > 1 else "none"
+    ca = c if color in ("theta_h", "both") else 1
+    cb = c if color in ("theta_d", "both") else 1
+    n = c + rank * (bins[0] * ca + bins[1] * cb)
+    if len(bins) == 3:
+        n += rank * bins[2]
+    if color == "weights":
+        n += rank * c
+    return n
+
+
+def _fit_options(spec: dict[str, Any]) -> dict[str, Any]:
+    return {k: v for k, v in spec.items() if k in _FIT_KEYS}
+
+
+def _lobe(spec: dict[str, Any], brdf: Any, fits: dict[tuple, Any]) -> Any:
+    opts = _fit_options(spec)
+    key = (spec["family"], tuple(sorted((k, repr(v)) for k, v in opts.items())))
+    if key not in fits:
+        fits[key] = project.fit_model(brdf, spec["family"], **opts)
+    return fits[key]
+
+
+def _nodes(order: int) -> tuple[int, int]:
+    return 2 * order + 16, 4 * order + 32
+
+
+def _make(spec: dict[str, Any], brdf: Any, fits: dict[tuple, Any]) -> Any:
+    form = spec["form"]
+    if form == "model":
+        return _lobe(spec, brdf, fits)
+    if form == "hybrid":
+        return make_hybrid(brdf, spec["order"], lobe=_lobe(spec, brdf, fits),
+                           kind=spec["kind"], error_samples=0,
+                           nodes=_nodes(spec["order"]))
+    b = basis.make_basis(spec["kind"], spec["order"])
+    cm = project.project(brdf, b, nodes=_nodes(spec["order"]))
+    if spec.get("rank") is not None:
+        cm = lowrank(cm, nonneg_int(spec["rank"], "candidate rank"))
+    return cm
+
+
+def _rounded(rep: Any, dtype: str, spec: dict[str, Any]) -> tuple[Any, int]:
+    """Round a representation to a storage type; return it and its bytes there."""
+    size = np.dtype(dtype).itemsize
+    if isinstance(rep, CoefficientMatrix):
+        r = precision(rep, dtype)
+        n = rep.info["lowrank"]["numbers"] if "lowrank" in rep.info else \
+            unique_coefficients(rep)
+        return r, n * size
+    if isinstance(rep, Hybrid):
+        lobe, lb = _rounded(rep.lobe, dtype, spec)
+        res, rb = _rounded(rep.residual, dtype, spec)
+        return Hybrid(lobe, res, dict(rep.info)), lb + rb
+    params = {}
+    top = float(np.finfo(dtype).max)
+    for k, v in rep.params.items():
+        if np.max(np.abs(v), initial=0.0) > top:
+            raise ValueError(f"parameter {k!r} (up to {np.max(np.abs(v)):.4g}) exceeds the "
+                             f"largest {dtype}")
+        params[k] = np.asarray(v).astype(dtype).astype(np.float64)
+    return project.FittedModel(rep.family, params, info=dict(rep.info)), rep.nparams * size
+
+
+def _row(b: _Build, dtype: str, **values: Any) -> dict[str, Any]:
+    row = {"label": b.label, "form": b.spec["form"], "candidate": dict(b.spec),
+           "family": b.spec.get("family") or b.spec["kind"], "dtype": dtype,
+           "bytes": b.bytes(dtype),
+           "l2": math.nan, "log": math.nan, "l2_stderr": math.nan, "error": math.nan,
+           "meets": False, "seconds": math.nan}
+    row.update(values)
+    return row
+
+
+# -- scenes ------------------------------------------------------------------------------------
+
+def _scene_judge(brdf: Any, scene: Mapping[str, Any]) -> Callable[[Any], float]:
+    """Return a function: the radiance error of a representation under the scene."""
+    if not isinstance(scene, Mapping) or "lights" not in scene or "views" not in scene:
+        raise ValueError("scene must be a dict with 'lights' (an Environment or (n, 3) "
+                         "light directions) and 'views' ((m, 3) view directions)")
+    unknown = sorted(set(scene) - {"lights", "views", "light_weights", "resolution"})
+    if unknown:
+        raise ValueError(f"unknown scene key(s) {unknown}; the keys are 'lights', 'views', "
+                         "'light_weights', 'resolution'")
+    lights = scene["lights"]
+    if not isinstance(lights, Environment):
+        lights = Environment.directional(lights, scene.get("light_weights"))
+    views = as_directions(scene["views"], "scene views").reshape(-1, 3)
+    resolution = nonneg_int(scene.get("resolution", 128), "scene resolution")
+    ref = lights.radiance(brdf, views, resolution=resolution)
+    norm = np.sqrt(np.mean(ref * ref, axis=0))
+    if not np.all(norm > 0):
+        raise ValueError("the scene's lights reflect no radiance towards its views: the "
+                         "radiance error is undefined (lights below the horizon?)")
+
+    def judge(rep: Any) -> float:
+        out = lights.radiance(rep, views, resolution=resolution)
+        if out.shape[1] == 1 and ref.shape[1] > 1:
+            out = np.broadcast_to(out, ref.shape)
+        return float(np.max(np.sqrt(np.mean((out - ref) ** 2, axis=0)) / norm))
+
+    return judge

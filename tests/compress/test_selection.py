@@ -1,0 +1,172 @@
+"""compress.select: the smallest representation within a tolerance.
+
+References: closed forms (a Lambertian BRDF is one coefficient; its radiance under a
+directional light is kd/pi E cos theta, under a uniform sky kd L), the bytes of what is
+stored (counted from the representations themselves), and exhaustive runs (a lazy run
+must pick what the exhaustive one picks).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import basis
+import compress
+from compress import Environment, NoCandidateError, select
+from compress.selection import _reals
+from compress.truncate import unique_coefficients
+from project import FittedModel
+from project.models import CookTorrance, Lambert
+
+FAST = {"error_n": 4096}
+
+
+def test_equal_errors_pick_the_smaller():
+    """A Lambertian BRDF is exact at every order: order 2 (fewer bytes) wins over order 6,
+    and the larger candidate is not even built (it cannot be smaller)."""
+    lam = Lambert([0.2, 0.3, 0.4])
+    rep = select(lam, 1e-9, candidates=[{"form": "modal", "kind": "zernike", "order": 6},
+                                        {"form": "modal", "kind": "zernike", "order": 2}],
+                 dtypes=("float64",), **FAST)
+    assert isinstance(rep, basis.CoefficientMatrix) and rep.order == 2
+    rows = {r["candidate"]["order"]: r for r in rep.info["candidates"]}
+    assert rows[2]["status"] == "measured" and rows[2]["l2"] < 1e-12
+    assert rows[6]["status"].startswith("skipped")
+    assert rep.info["bytes"] == rows[2]["bytes"] == 8 * unique_coefficients(rep)
+    full = select(lam, 1e-9, candidates=[{"form": "modal", "kind": "zernike", "order": 6},
+                                         {"form": "modal", "kind": "zernike", "order": 2}],
+                  dtypes=("float64",), exhaustive=True, **FAST)
+    assert full.order == 2
+    assert all(r["status"] == "measured" for r in full.info["candidates"])
+
+
+def test_storage_type_is_a_candidate():
+    """The same model at float16 costs a quarter of the bytes; its rounding error (~1e-3
+    relative) is measured, so a tolerance below it picks float32."""
+    ct = CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx")
+    cands = [{"form": "model", "family": "lambert+ggx", "restarts": 1}]
+    loose = select(ct, 0.05, candidates=cands, **FAST)
+    assert loose.info["dtype"] == "float16" and loose.info["bytes"] == 2 * loose.nparams
+    rows = {r["dtype"]: r for r in loose.info["candidates"]}
+    assert rows["float64"]["l2"] < 3e-6  # the family holds this model (fit to ~1e-6)
+    assert 2e-5 < rows["float16"]["l2"] < 5e-3
+    strict = select(ct, 1.5e-5, candidates=cands, **FAST)
+    assert strict.info["dtype"] == "float32" and strict.info["bytes"] == 4 * strict.nparams
+    p16 = loose.params["alpha"]
+    assert float(p16) == float(np.float16(p16))  # held rounded, as it would be stored
+
+
+def test_predicted_bytes_are_the_stored_bytes():
+    """Candidates are ordered by bytes known before they are built: every form's prediction
+    equals what the built representation stores."""
+    ct = CookTorrance([0.3, 0.2, 0.1], 0.2, "ggx", ior=1.5)
+    cands = [{"form": "model", "family": "factored", "rank": 2, "bins": (10, 8, 4)},
+             {"form": "model", "family": "factored", "rank": 1, "bins": (10, 8),
+              "color": "theta_d"},
+             {"form": "model", "family": "lafortune", "lobes": 2, "restarts": 1},
+             {"form": "modal", "kind": "zernike", "order": 3},
+             {"form": "modal", "kind": "harmonics", "order": 3},
+             {"form": "hybrid", "family": "factored", "rank": 1, "bins": (10, 8),
+              "kind": "zernike", "order": 2}]
+    rep = select(ct, 10.0, candidates=cands, exhaustive=True, dtypes=("float64",), **FAST)
+    rows = rep.info["candidates"]
+    assert len(rows) == len(cands) and all(r["status"] == "measured" for r in rows)
+    for r in rows:
+        assert r["bytes"] == 8 * _reals(dict(r["candidate"]), 3), r["label"]
+    lobe = FittedModel("factored", {"kd": [0.1, 0.1, 0.1], "h_table": np.ones((2, 10, 1)),
+                                    "d_table": np.ones((2, 8, 1)),
+                                    "phi_table": np.ones((2, 4)), "weights": np.ones((2, 3)),
+                                    "warp": 3.0, "warp_d": 2.0})
+    assert _reals({"form": "model", "family": "factored", "rank": 2, "bins": (10, 8, 4)},
+                  3) == lobe.nparams
+
+
+def test_no_candidate_raises_with_the_table():
+    with pytest.raises(NoCandidateError, match="smallest error is .* add larger") as e:
+        select(CookTorrance(0.1, 0.05, "ggx"), 1e-4,
+               candidates=[{"form": "modal", "kind": "zernike", "order": 2}], **FAST)
+    assert isinstance(e.value, ValueError)
+    assert len(e.value.candidates) == 3 and e.value.candidates[0]["status"] == "measured"
+
+
+def test_failed_candidates_are_reported_not_raised():
+    """A candidate that cannot be built is a row with its reason; the others still run."""
+    lam = Lambert(0.3)
+    rep = select(lam, 1e-6, dtypes=("float64",), candidates=[
+        {"form": "model", "family": "factored", "rank": 1, "bins": (4, 4), "warp": "bad"},
+        {"form": "modal", "kind": "zernike", "order": 2}], exhaustive=True, **FAST)
+    bad = [r for r in rep.info["candidates"] if r["status"].startswith("failed")]
+    assert len(bad) == 1 and "warp" in bad[0]["status"]
+
+
+@pytest.mark.parametrize(("kwargs", "error", "match"), [
+    ({"tol": 0.0}, ValueError, "tol must be a positive number"),
+    ({"tol": math.nan}, ValueError, "tol must be a positive number"),
+    ({"metric": "max"}, ValueError, "metric"),
+    ({"candidates": [{"form": "spline"}]}, ValueError, "candidate form"),
+    ({"candidates": [{"form": "modal", "kind": "zernike"}]}, ValueError, "needs \\['order'\\]"),
+    ({"candidates": [{"form": "modal", "kind": "zernike", "order": 2, "rnk": 1}]},
+     ValueError, "unknown key"),
+    ({"candidates": [{"form": "model", "family": "phong"}]}, ValueError, "candidate family"),
+    ({"candidates": []}, ValueError, "at least one candidate"),
+    ({"dtypes": ("float8",)}, ValueError, "dtypes"),
+    ({"scene": {"lights": [[0.0, 0.0, 1.0]]}}, ValueError, "'views'"),
+])
+def test_bad_arguments(kwargs, error, match):
+    args = {"tol": 0.1, **kwargs}
+    tol = args.pop("tol")
+    with pytest.raises(error, match=match):
+        select(Lambert(0.3), tol, **args, **FAST)
+
+
+def test_bad_brdf_values():
+    class Negative(Lambert):
+        def _eval(self, wi, wo):
+            return super()._eval(wi, wo) - 1.0
+
+    with pytest.raises(ValueError, match="negative"):
+        select(Negative(0.3), 0.1, **FAST)
+    with pytest.raises(TypeError, match="must be a BRDF"):
+        select("lambert", 0.1, **FAST)
+
+
+# -- scenes -------------------------------------------------------------------------------------
+
+def test_radiance_closed_forms():
+    """Environment.radiance of a Lambertian BRDF: kd/pi E cos(theta) for directional
+    lights (exact), kd L for a uniform sky (midpoint rule: ~1e-4 at 128 rows)."""
+    kd = np.array([0.2, 0.5, 0.8])
+    views = basis.from_angles(np.radians([0.0, 40.0, 85.0]), np.radians([0.0, 30.0, 200.0]))
+    light = basis.from_angles(np.radians(60.0), 0.0)[None]
+    env = Environment.directional(light, [2.0])
+    out = env.radiance(Lambert(kd), views)
+    np.testing.assert_allclose(out, np.broadcast_to(kd / np.pi * 2.0 * 0.5, (3, 3)),
+                               rtol=1e-14)
+    sky = Environment.sh(np.array([1.5 * math.sqrt(4.0 * math.pi)]))  # L = 1.5 everywhere
+    out = sky.radiance(Lambert(kd), views)
+    np.testing.assert_allclose(out, np.broadcast_to(1.5 * kd, (3, 3)), rtol=2e-4)
+
+
+def test_scene_error_counts_only_what_the_scene_sees():
+    """Two lobes that differ only near grazing: under a light and views near the normal
+    the scene error is ~0 though the l2 error is not, so select accepts the smaller one."""
+    ct = CookTorrance(0.2, 0.3, "ggx")
+    lights = basis.from_angles(np.radians([0.0, 10.0]), 0.0)
+    views = basis.from_angles(np.radians([0.0, 5.0, 10.0]), np.radians([0.0, 90.0, 180.0]))
+    cands = [{"form": "modal", "kind": "zernike", "order": 2},
+             {"form": "modal", "kind": "zernike", "order": 10}]
+    with pytest.raises(NoCandidateError):
+        select(ct, 0.02, candidates=cands, dtypes=("float64",), **FAST)
+    rep = select(ct, 0.2, candidates=cands, dtypes=("float64",), exhaustive=True,
+                 scene={"lights": lights, "views": views}, **FAST)
+    rows = {r["candidate"]["order"]: r for r in rep.info["candidates"]}
+    assert rows[10]["scene"] < rows[2]["scene"]
+    assert all(r["error"] == r["scene"] for r in rows.values())
+    assert rep.info["metric"] == "scene"
+
+
+def test_exported():
+    assert compress.select is select and "select" in compress.__all__
