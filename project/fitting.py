@@ -863,13 +863,15 @@ class FittedModel(BRDF):
 
     Parameters
     ----------
-    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored"}
+    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807"}
     params : dict of str to array_like of float
         The family's parameters (module notes): ``kd``, ``ks`` (C,), ``alpha``, ``f0``
         (scalars) for the microfacet families; ``kd`` (C,), ``rho`` (L, C), ``cx`` (< 0),
         ``cz`` (= 1), ``n`` (L,) for "lafortune"; the tables of
-        :attr:`project.factored.FactoredLobe.params` for "factored". C, the number of
-        channels, is the length of ``kd``.
+        :attr:`project.factored.FactoredLobe.params` for "factored"; ``kappa``, ``gamma``
+        (K, 6, C) for "dsbrdf"; ``kd``, ``ks``, ``kw``, ``f0`` (C,), ``sigma``, ``p``,
+        ``a`` (scalars) and optionally ``wavelength`` (C,) for "rr8807". C, the number of
+        channels, is the length of ``kd`` (the last axis of ``kappa``).
     info : dict, optional
         What :func:`fit_model` measured (empty for a model built by hand).
 
@@ -879,7 +881,7 @@ class FittedModel(BRDF):
     params : dict of str to ndarray
         Copies of the parameters (read-only arrays).
     nparams : int
-        Number of real parameters (2 C + 2, or C + L (C + 2)).
+        Number of real parameters (2 C + 2; C + L (C + 2); 12 K C; 4 C + 3).
     nbytes : int
         8 * nparams (float64 storage).
     info : dict
@@ -1038,16 +1040,18 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         Any object with ``eval(wi, wo)`` returning finite values >= 0 (an analytic model,
         :func:`project.measured.read_merl`, a coefficient matrix...). Delta terms are not
         fitted (warned).
-    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored"}
+    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807"}
         See the module notes for each family's parameters and bounds.
     metric : {"l2", "log"}
         What the fit minimises: the relative l2 error of q = f cos theta_i cos theta_o, or
         the RMS of log(1 + f cos theta_i) (module notes).
     **options
         ``n`` (fitting pairs, default 16384), ``seed`` (default 0), ``restarts`` (starting
-        points, default 4; use 8 or more for multi-lobe Lafortune), ``lobes`` (Lafortune
-        lobes, default 1), ``max_nfev`` (function evaluations per restart, default
-        scipy's 100 x the number of parameters), ``error_n`` (pairs of the error estimate,
+        points, default 4; use 8 or more for multi-lobe Lafortune), ``lobes`` (lobes of
+        "lafortune", default 1, or of "dsbrdf", default 3), ``wavelength`` ("rr8807": um
+        per channel, default the report's RGB for 3 channels), ``max_nfev`` (function
+        evaluations per restart, default scipy's 100 x the number of parameters, per
+        channel for "dsbrdf"), ``error_n`` (pairs of the error estimate,
         default 65536), ``error_seed`` (default ``seed + 1``, must differ from ``seed``) and
         ``widths`` (the lobe widths of :func:`project.sampling.peak_resolving_pairs` for both
         pair sets; add a narrower one for very sharp highlights, module notes).
