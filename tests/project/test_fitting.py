@@ -488,6 +488,15 @@ def test_rr8807_diffraction_energy():
                                "f0": [0.5] * 3, "sigma": 1e-4, "p": 1.0, "a": 0.91})
     np.testing.assert_allclose(m.albedo([0.0, 0.0, 1.0], n_theta=512, n_phi=64), 1.0,
                                atol=1e-4)
+    # S alone (kw = lambda^4 E) at 0.526 um away from normal incidence: the digest's
+    # held-out values 0.5319, 0.3677, 0.2867 at 30, 60, 80 deg (G and F excluded)
+    e_g = np.pi / (1 + 1 / (0.91 * 0.526) ** 2)
+    green = FittedModel("rr8807", {"kd": [0], "ks": [0], "kw": [0.526 ** 4 * e_g],
+                                   "f0": [0.5], "sigma": 1e-4, "p": 1.0, "a": 0.91})
+    for deg, expect in ((30, 0.5319), (60, 0.3677), (80, 0.2867)):
+        t_i = np.radians(deg)
+        a = green.albedo([np.sin(t_i), 0.0, np.cos(t_i)], n_theta=512, n_phi=256)
+        assert float(a) == pytest.approx(expect, abs=2e-4)
 
 
 def test_rr8807_wavelengths():
