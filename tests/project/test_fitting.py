@@ -574,3 +574,21 @@ def test_dsbrdf_energy_bound_of_the_paper_is_not_the_albedo():
     for theta, ratio in ((0.0, 4.0), (0.5, 4 * np.cos(0.5) ** 2)):
         a = sharp.albedo([np.sin(theta), 0.0, np.cos(theta)], n_theta=1024, n_phi=1024)
         assert float(a) / inv_c(2.0, 2000.0) == pytest.approx(ratio, rel=0.01)
+
+
+def test_rr8807_nickel_near_the_report(merl_surrogate):
+    """rr8807 on the MERL-format surrogate of nickel against Holzschuch & Pacanowski's fit
+    of the measured nickel (RR-8807, fig. 12a: sigma = 0.027, p = 0.51, a = 0.91 um^-1).
+    Measured here (4 restarts, all at one minimum): sigma 0.0242, p 0.466, a 1.30, l2
+    0.229. The data (a neural fit of the measurement) and the objective (relative l2 of
+    f cos cos on all angles, not their cos^2 theta_i weighted MSE below 1.4 rad, two-step)
+    differ, so asserted: sigma and p within 25 % of the report's, a within a factor 2."""
+    from project.measured import read_merl
+
+    fit = fit_model(read_merl(merl_surrogate("nickel")), "rr8807", restarts=1)
+    p = fit.params
+    print(f"nickel rr8807: {fit}, l2 {fit.info['l2']:.4f}, {fit.info['seconds']:.1f} s")
+    assert fit.info["converged"]
+    assert float(p["sigma"]) == pytest.approx(0.027, rel=0.25)
+    assert float(p["p"]) == pytest.approx(0.51, rel=0.25)
+    assert 0.91 / 2 < float(p["a"]) < 0.91 * 2
