@@ -592,3 +592,27 @@ def test_rr8807_nickel_near_the_report(merl_surrogate):
     assert float(p["sigma"]) == pytest.approx(0.027, rel=0.25)
     assert float(p["p"]) == pytest.approx(0.51, rel=0.25)
     assert 0.91 / 2 < float(p["a"]) < 0.91 * 2
+
+
+def test_rr8807_sampling_exponent():
+    """RR-8807 eq. 23 samples theta_h = arctan(sigma Q^-1(1/p, u)^e) with e = p/2 as
+    printed; y = Q^-1(1/p, u) ~ Gamma(1/p), so P(tan^2 theta_h <= X) = P(1/p, (X /
+    sigma^2)^(1/(2e))). The distribution of the model (D cos theta_h, integrated here on a
+    grid) has P(1/p, (X / sigma^2)^p): e = 1/(2p). Values for sigma = 0.1, p = 0.51 at X =
+    0.002, 0.01, 0.03, 0.1: 0.0779, 0.2752, 0.5346, 0.8402 (the reference digest's); the
+    printed exponent gives 0.998 at X = 0.03."""
+    from scipy.special import gammainc, gammaln
+
+    sigma, p = 0.1, 0.51
+    t = np.linspace(0.0, np.arctan(np.sqrt(0.1)), 400001)
+    x = np.tan(t) ** 2
+    d = np.exp(np.log(p) - np.log(np.pi) - 2 * np.log(sigma) - gammaln(1 / p)
+               - (x / sigma ** 2) ** p) / np.cos(t) ** 4
+    dens = 2 * np.pi * d * np.cos(t) * np.sin(t)
+    cdf = np.concatenate([[0.0], np.cumsum(0.5 * (dens[1:] + dens[:-1]) * np.diff(t))])
+    xs = np.array([0.002, 0.01, 0.03, 0.1])
+    got = np.interp(xs, x, cdf)
+    np.testing.assert_allclose(got, [0.0779, 0.2752, 0.5346, 0.8402], atol=1e-4)
+    np.testing.assert_allclose(got, gammainc(1 / p, (xs / sigma ** 2) ** p), atol=1e-6)
+    printed = gammainc(1 / p, (0.03 / sigma ** 2) ** (1 / p))
+    assert printed == pytest.approx(0.998, abs=1e-3)
