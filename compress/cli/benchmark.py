@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import functools
 import json
+from collections.abc import Callable
 from pathlib import Path
 
 __all__ = ["add_parser"]
 
 
-def add_parser(sub: argparse._SubParsersAction, fmt: type, progress: callable) -> None:
-    """Register ``benchmark`` (with its one target, ``merl``) on the subcommand parser."""
+def add_parser(sub: argparse._SubParsersAction, fmt: type,
+               add_progress: Callable[[argparse.ArgumentParser], None],
+               wants_progress: Callable[[argparse.Namespace], bool]) -> None:
+    """Register ``benchmark`` (with its one target, ``merl``) on the subcommand parser.
+
+    ``add_progress`` adds the command line's ``--progress`` flag, ``wants_progress`` reads
+    it (the conventions of :mod:`compress.cli.commands`, which calls this).
+    """
     b = sub.add_parser(
         "benchmark", formatter_class=fmt,
         help="the smallest representation of every MERL material within a tolerance",
@@ -34,14 +42,14 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type, progress: callable) -
                    help="comma-separated material names (default: every file in DIR)")
     b.add_argument("--error-pairs", type=int, default=1 << 16,
                    help="pairs of the peak-resolving error estimate (default %(default)s)")
-    progress(b)
-    b.set_defaults(func=run)
+    add_progress(b)
+    b.set_defaults(func=functools.partial(run, wants_progress=wants_progress))
 
 
-def run(args: argparse.Namespace) -> int:
+def run(args: argparse.Namespace, *,
+        wants_progress: Callable[[argparse.Namespace], bool]) -> int:
     """Run the benchmark and print the summary."""
     from ..benchmark import benchmark_merl
-    from .commands import _progress
 
     try:
         tols = [float(t) for t in args.tols.split(",")]
@@ -52,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     names = None if args.materials is None else \
         [n.strip() for n in args.materials.split(",") if n.strip()]
     benchmark_merl(args.folder, args.out, tols=tols, workers=args.workers, materials=names,
-                   error_n=args.error_pairs, progress=_progress(args))
+                   error_n=args.error_pairs, progress=wants_progress(args))
     summary = json.loads((Path(args.out) / "summary.json").read_text())
     print(json.dumps(summary, indent=2))
     print(f"wrote {Path(args.out) / 'materials.csv'}, candidates.csv, pareto.png, "
