@@ -1005,6 +1005,14 @@ def fit_stability(cases: Sequence[tuple[str, int | None]] = FIT_CASES, *,
     :func:`project.fit_model` with ``restarts`` starts (restart 0 from the family's grid, the
     others at random) on the same fitting pairs, and the final costs are compared.
 
+    Measured with the defaults (RGB target, n = 4096, 8 restarts; 8 minutes on a loaded
+    2-core machine, most of it dsbrdf): lafortune with 1 and 2 lobes, lambert+ggx and
+    rr8807 reach one minimum from all 8 starts; lafortune with 3 lobes from 6 (the others
+    10 % higher); dsbrdf with 3 lobes (108 reals) from 1, the other 7 spread from 5 % to
+    36 % higher (min / median / max 0.00882 / 0.00980 / 0.01198), while reaching by far the
+    lowest cost. The small atlas (one channel, n = 512, dsbrdf with 2 lobes; ~9 s): 3-lobe
+    lafortune 2 of 8, dsbrdf 1 of 8 within 1e-6 but 5 within 1e-3.
+
     Parameters
     ----------
     cases : sequence of (family, lobes)
