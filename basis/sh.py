@@ -40,6 +40,8 @@ class _Harmonics(Basis):
         super().__init__(lmax, "lmax")
         self._degree, self._azimuthal = _sh_indices(self._order, self._parity)
         self._a, self._b, self._d = _legendre_tables(self._order)
+        self._rows = _row_tables(self._order, self._a, self._b)
+        self._smin = _seed_floor(self._order, self._norm)
 
     @property
     def lmax(self) -> int:
@@ -47,8 +49,8 @@ class _Harmonics(Basis):
         return self._order
 
     def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
-        _sh_kernel(dirs, self._order, _PARITY_CODE[self._parity], self._norm,
-                   self._a, self._b, self._d, triangular_offsets(self._order), out)
+        _eval_harmonics(dirs, self._order, _PARITY_CODE[self._parity], self._norm, self._a,
+                        self._b, self._d, self._rows, self._smin, out)
 
 
 class SphericalHarmonics(_Harmonics):
@@ -277,70 +279,286 @@ def _pos(l, m, parity):
     return (l * (l + 1)) // 2 + (m + l) // 2
 
 
+#: Points per block of the lane kernel: the recurrence runs over a block's points at once.
+_LANES = 8
+#: Blocks per parallel task (scratch arrays are allocated once per task).
+_BLOCKS_PER_TASK = 32
+#: Degrees from which the lane kernel beats the per-point kernels (measured on two cores).
+_LANE_LMAX = 24
+
+
+def _row_tables(lmax: int, a: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
+    """Re-order the recurrence coefficients by row l (entry (l, m) at l (l + 1) / 2 + m)."""
+    l, m = np.tril_indices(lmax + 1)
+    col = triangular_offsets(lmax)[m] + l - m
+    return np.ascontiguousarray(a[col]), np.ascontiguousarray(b[col])
+
+
+def _seed_floor(lmax: int, norm: float) -> float:
+    """Smallest sin(theta) > 0 for which no sectoral seed P_mm, m <= lmax, falls below _TINY.
+
+    P_mm >= norm / sqrt(4 pi) sin(theta)^m since every factor d_m exceeds 1, so above this
+    floor the carried exponent is never needed and the fast kernels apply.
+    """
+    if lmax == 0:
+        return 0.0
+    p00 = norm / np.sqrt(4.0 * np.pi)
+    return float((_TINY / p00) ** (1.0 / lmax)) * (1.0 + 1e-12)
+
+
+def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, out):
+    """Dispatch to the fastest kernel; all of them give bit-identical values."""
+    off = triangular_offsets(lmax)
+    if lmax >= _LANE_LMAX:
+        _sh_lane_kernel(dirs, lmax, parity, norm, a, b, d, off, rows[0], rows[1], smin, out)
+    elif parity == 2:
+        _sh_pair_kernel(dirs, lmax, norm, a, b, d, off, smin, out)
+    else:
+        _sh_kernel(dirs, lmax, parity, norm, a, b, d, off, out)
+
+
+@njit(inline="always")
+def _unit(dirs, i):
+    # renormalised z, sin(theta) and the unit azimuth (cos phi, sin phi) of direction i
+    x = dirs[i, 0]
+    y = dirs[i, 1]
+    z = dirs[i, 2]
+    r = np.sqrt(x * x + y * y + z * z)
+    x /= r
+    y /= r
+    z /= r
+    s = np.sqrt(x * x + y * y)
+    if s > 0.0:
+        return z, s, x / s, y / s
+    return z, s, 1.0, 0.0
+
+
+@njit(inline="always")
+def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
+    # The reference evaluation of one direction, with the carried exponent: every fast kernel
+    # falls back to it where a sectoral seed would underflow.
+    z, s, c1, s1 = _unit(dirs, i)
+    sqrt2 = np.sqrt(2.0)
+    cm = sqrt2  # sqrt(2) cos(m phi) and sqrt(2) sin(m phi): the m != 0 normalisation
+    sm = 0.0
+    pmm = norm / np.sqrt(4.0 * np.pi)
+    emm = 0
+    for m in range(lmax + 1):
+        if m > 0:
+            t = cm * c1 - sm * s1
+            sm = sm * c1 + cm * s1
+            cm = t
+            pmm *= d[m] * s
+            if pmm < _TINY and pmm != 0.0:
+                pmm *= _HUGE
+                emm -= _RESCALE
+        if m == 0:
+            fc = 1.0
+            fs = 0.0
+        else:
+            fc = cm
+            fs = sm
+        if emm < 0:
+            fc *= np.ldexp(1.0, emm)
+            fs *= np.ldexp(1.0, emm)
+        _store(row, m, m, pmm, fc, fs, parity)
+        if m == lmax:
+            continue
+        base = off[m] - m
+        p2 = pmm
+        p1 = a[base + m + 1] * z * pmm
+        _store(row, m + 1, m, p1, fc, fs, parity)
+        e = emm
+        for l in range(m + 2, lmax + 1):
+            p = a[base + l] * z * p1 - b[base + l] * p2
+            p2 = p1
+            p1 = p
+            if abs(p) > _HUGE:  # only in carried-exponent columns
+                p1 *= _TINY
+                p2 *= _TINY
+                e += _RESCALE
+                scale = np.ldexp(1.0, e) if e < 0 else 1.0
+                fc = (cm if m else 1.0) * scale
+                fs = (sm if m else 0.0) * scale
+            _store(row, l, m, p1, fc, fs, parity)
+
+
 @pjit
 def _sh_kernel(dirs, lmax, parity, norm, a, b, d, off, out):
     # dirs (n, 3) float64 ~unit vectors; a, b (T,) recurrence tables by column m, d (lmax+1,)
     # sectoral factors, off (lmax+1,) column starts; out (n, size) with size fixed by parity.
+    for i in prange(dirs.shape[0]):
+        _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
+
+
+@pjit
+def _sh_pair_kernel(dirs, lmax, norm, a, b, d, off, smin, out):
+    # All parities (out (n, (lmax+1)^2)), two directions per iteration: the recurrence in l is
+    # a chain of dependent multiplications, and two independent chains keep the FPU busy.
+    # Same operations in the same order as _sh_point, so the same bits; a direction with
+    # 0 < sin(theta) < smin needs the carried exponent and takes _sh_point.
     n = dirs.shape[0]
     sqrt2 = np.sqrt(2.0)
-    for i in prange(n):
-        x = dirs[i, 0]
-        y = dirs[i, 1]
-        z = dirs[i, 2]
-        r = np.sqrt(x * x + y * y + z * z)
-        x /= r
-        y /= r
-        z /= r
-        s = np.sqrt(x * x + y * y)
-        if s > 0.0:
-            c1 = x / s
-            s1 = y / s
-        else:
-            c1 = 1.0
-            s1 = 0.0
+    p00 = norm / np.sqrt(4.0 * np.pi)
+    for h in prange((n + 1) // 2):
+        i = 2 * h
+        j = min(i + 1, n - 1)  # odd n: the last direction twice, the same values written twice
+        z, s, c1, s1 = _unit(dirs, i)
+        zb, sb, c1b, s1b = _unit(dirs, j)
+        if (0.0 < s < smin) or (0.0 < sb < smin):
+            _sh_point(dirs, i, lmax, 2, norm, a, b, d, off, out[i])
+            _sh_point(dirs, j, lmax, 2, norm, a, b, d, off, out[j])
+            continue
         row = out[i]
-        cm = sqrt2  # sqrt(2) cos(m phi) and sqrt(2) sin(m phi): the m != 0 normalisation
+        rowb = out[j]
+        cm = sqrt2
         sm = 0.0
-        pmm = norm / np.sqrt(4.0 * np.pi)
-        emm = 0
+        pmm = p00
+        cmb = sqrt2
+        smb = 0.0
+        pmmb = p00
+        fc = 1.0
+        fs = 0.0
+        fcb = 1.0
+        fsb = 0.0
         for m in range(lmax + 1):
             if m > 0:
                 t = cm * c1 - sm * s1
                 sm = sm * c1 + cm * s1
                 cm = t
                 pmm *= d[m] * s
-                if pmm < _TINY and pmm != 0.0:
-                    pmm *= _HUGE
-                    emm -= _RESCALE
-            if m == 0:
-                fc = 1.0
-                fs = 0.0
-            else:
                 fc = cm
                 fs = sm
-            if emm < 0:
-                fc *= np.ldexp(1.0, emm)
-                fs *= np.ldexp(1.0, emm)
-            _store(row, m, m, pmm, fc, fs, parity)
+                t = cmb * c1b - smb * s1b
+                smb = smb * c1b + cmb * s1b
+                cmb = t
+                pmmb *= d[m] * sb
+                fcb = cmb
+                fsb = smb
+            k = m * m + 2 * m  # position of (l, m) = (m, m); (l, -m) is 2m before
+            row[k] = pmm * fc
+            rowb[k] = pmmb * fcb
+            if m > 0:
+                row[k - 2 * m] = pmm * fs
+                rowb[k - 2 * m] = pmmb * fsb
             if m == lmax:
                 continue
             base = off[m] - m
             p2 = pmm
             p1 = a[base + m + 1] * z * pmm
-            _store(row, m + 1, m, p1, fc, fs, parity)
-            e = emm
-            for l in range(m + 2, lmax + 1):
-                p = a[base + l] * z * p1 - b[base + l] * p2
-                p2 = p1
-                p1 = p
-                if abs(p) > _HUGE:  # only in carried-exponent columns
-                    p1 *= _TINY
-                    p2 *= _TINY
-                    e += _RESCALE
-                    scale = np.ldexp(1.0, e) if e < 0 else 1.0
-                    fc = (cm if m else 1.0) * scale
-                    fs = (sm if m else 0.0) * scale
-                _store(row, l, m, p1, fc, fs, parity)
+            p2b = pmmb
+            p1b = a[base + m + 1] * zb * pmmb
+            k += 2 * m + 2
+            row[k] = p1 * fc
+            rowb[k] = p1b * fcb
+            if m > 0:
+                row[k - 2 * m] = p1 * fs
+                rowb[k - 2 * m] = p1b * fsb
+            if m == 0:
+                for l in range(2, lmax + 1):
+                    al = a[base + l]
+                    bl = b[base + l]
+                    p = al * z * p1 - bl * p2
+                    pb = al * zb * p1b - bl * p2b
+                    p2 = p1
+                    p1 = p
+                    p2b = p1b
+                    p1b = pb
+                    k += 2 * l
+                    row[k] = p
+                    rowb[k] = pb
+            else:
+                for l in range(m + 2, lmax + 1):
+                    al = a[base + l]
+                    bl = b[base + l]
+                    p = al * z * p1 - bl * p2
+                    pb = al * zb * p1b - bl * p2b
+                    p2 = p1
+                    p1 = p
+                    p2b = p1b
+                    p1b = pb
+                    k += 2 * l
+                    row[k] = p * fc
+                    row[k - 2 * m] = p * fs
+                    rowb[k] = pb * fcb
+                    rowb[k - 2 * m] = pb * fsb
+
+
+@pjit
+def _sh_lane_kernel(dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, out):
+    # Blocks of _LANES directions run the recurrence together, row l by row l: the innermost
+    # loops go over the lanes with a fixed trip count, so they vectorise, and the chains of
+    # different lanes overlap. ra, rb: a, b by row (_row_tables). A block with a direction
+    # needing the carried exponent (0 < sin(theta) < smin), and the last partial block, take
+    # _sh_point; the others give its bits (same operations in the same order).
+    n = dirs.shape[0]
+    nfull = n // _LANES
+    ntask = (nfull + _BLOCKS_PER_TASK - 1) // _BLOCKS_PER_TASK
+    sqrt2 = np.sqrt(2.0)
+    p00 = norm / np.sqrt(4.0 * np.pi)
+    for i in range(nfull * _LANES, n):  # the partial block (few directions)
+        _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
+    for task in prange(ntask):
+        rows = np.empty((3, lmax + 1, _LANES))
+        cc = np.empty((lmax + 1, _LANES))
+        ss = np.empty((lmax + 1, _LANES))
+        seed = np.empty((lmax + 1, _LANES))
+        zz = np.empty(_LANES)
+        for blk in range(task * _BLOCKS_PER_TASK, min(nfull, (task + 1) * _BLOCKS_PER_TASK)):
+            i0 = blk * _LANES
+            slow = False
+            for j in range(_LANES):
+                z, s, c1, s1 = _unit(dirs, i0 + j)
+                slow |= 0.0 < s < smin
+                zz[j] = z
+                cm = sqrt2
+                sm = 0.0
+                pmm = p00
+                cc[0, j] = 1.0
+                ss[0, j] = 0.0
+                seed[0, j] = pmm
+                for m in range(1, lmax + 1):
+                    t = cm * c1 - sm * s1
+                    sm = sm * c1 + cm * s1
+                    cm = t
+                    cc[m, j] = cm
+                    ss[m, j] = sm
+                    pmm *= d[m] * s
+                    seed[m, j] = pmm
+            if slow:
+                for j in range(_LANES):
+                    _sh_point(dirs, i0 + j, lmax, parity, norm, a, b, d, off, out[i0 + j])
+                continue
+            for l in range(lmax + 1):
+                o = (l * (l + 1)) // 2
+                p = rows[l % 3]
+                p1 = rows[(l + 2) % 3]
+                p2 = rows[(l + 1) % 3]
+                for m in range(l + 1):
+                    if m < l - 1:
+                        am = ra[o + m]
+                        bm = rb[o + m]
+                        for j in range(_LANES):
+                            p[m, j] = am * zz[j] * p1[m, j] - bm * p2[m, j]
+                    elif m == l - 1:
+                        am = ra[o + m]
+                        for j in range(_LANES):
+                            p[m, j] = am * zz[j] * p1[m, j]
+                    else:
+                        for j in range(_LANES):
+                            p[m, j] = seed[m, j]
+                    if parity != 2 and (l + m) % 2 != parity:
+                        continue
+                    kc = _pos(l, m, parity)
+                    if m == 0:
+                        for j in range(_LANES):
+                            out[i0 + j, kc] = p[0, j]
+                    else:
+                        ks = _pos(l, -m, parity)
+                        for j in range(_LANES):
+                            out[i0 + j, kc] = p[m, j] * cc[m, j]
+                        for j in range(_LANES):
+                            out[i0 + j, ks] = p[m, j] * ss[m, j]
 
 
 @njit(inline="always")
