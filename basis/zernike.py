@@ -17,6 +17,8 @@ from .quadrature import HemisphereRule, hemisphere_rule
 from .validation import nonneg_int
 
 _INV_SQRT2 = float(1.0 / np.sqrt(2.0))
+#: From this order on, output rows are touched sequentially before the scattered writes.
+_TOUCH_ORDER = 12
 
 
 class HemiZernike(Basis):
@@ -171,35 +173,57 @@ def _radial_kernel(rho, n, l, out):
         out[i] = r
 
 
+@njit(inline="always")
+def _disk(dirs, i):
+    # rho^2, rho and the unit azimuth (cos phi, sin phi) of direction i, renormalised
+    x = dirs[i, 0]
+    y = dirs[i, 1]
+    z = dirs[i, 2]
+    r = np.sqrt(x * x + y * y + z * z)
+    x /= r
+    y /= r
+    z /= r
+    s2 = x * x + y * y
+    s = np.sqrt(s2)
+    if s > 0.0:
+        c1 = x / s
+        s1 = y / s
+    else:
+        c1 = 1.0
+        s1 = 0.0
+    rho2 = s2 / (1.0 + z) if z > -0.5 else 1.0 - z
+    return rho2, np.sqrt(rho2), c1, s1
+
+
 @pjit
 def _zernike_kernel(dirs, order, coef, norm, out):
     # dirs (p, 3) ~unit vectors with z >= 0 (up to rounding); coef (T, 3) from _radial_tables;
     # norm (order+1,) = sqrt((n+1)/pi);
     # out (p, (order+1)(order+2)/2), position of (n, l) = n(n+1)/2 + (l + n)/2.
+    # Two directions per iteration: each radial recurrence is a chain of dependent
+    # multiplications, and two independent chains keep the FPU busy. The odd last direction
+    # is evaluated twice (the same values written twice).
     p = dirs.shape[0]
-    for i in prange(p):
-        x = dirs[i, 0]
-        y = dirs[i, 1]
-        z = dirs[i, 2]
-        r = np.sqrt(x * x + y * y + z * z)
-        x /= r
-        y /= r
-        z /= r
-        s2 = x * x + y * y
-        s = np.sqrt(s2)
-        if s > 0.0:
-            c1 = x / s
-            s1 = y / s
-        else:
-            c1 = 1.0
-            s1 = 0.0
-        rho2 = s2 / (1.0 + z) if z > -0.5 else 1.0 - z
-        rho = np.sqrt(rho2)
+    for h in prange((p + 1) // 2):
+        i = 2 * h
+        j = min(i + 1, p - 1)
+        rho2, rho, c1, s1 = _disk(dirs, i)
+        rho2b, rhob, c1b, s1b = _disk(dirs, j)
         xx = 2.0 * rho2 - 1.0
+        xxb = 2.0 * rho2b - 1.0
         row = out[i]
+        rowb = out[j]
+        if order >= _TOUCH_ORDER:
+            # a long row is written in column order, scattered over many cache lines: one
+            # sequential pass first brings them in as a stream
+            row[:] = 0.0
+            rowb[:] = 0.0
         rll = 1.0
+        rllb = 1.0
         cl = 1.0
         sl = 0.0
+        clb = 1.0
+        slb = 0.0
         col = 0
         for l in range(order + 1):
             if l > 0:
@@ -207,28 +231,55 @@ def _zernike_kernel(dirs, order, coef, norm, out):
                 t = cl * c1 - sl * s1
                 sl = sl * c1 + cl * s1
                 cl = t
-            r_prev = 0.0
-            rr = rll
+                rllb *= rhob
+                t = clb * c1b - slb * s1b
+                slb = slb * c1b + clb * s1b
+                clb = t
             fl = float(l)
             nk = (order - l) // 2 + 1
-            for k in range(nk):
-                n = l + 2 * k
-                if k == 1:
+            if l == 0:  # zonal: one function per n, at n(n+1)/2 + n/2
+                fc = _INV_SQRT2
+                fcb = _INV_SQRT2
+            else:
+                fc = cl
+                fcb = clb
+            # k = 0: R_l^l = rho^l; positions of (n, +l) and (n, -l) move by 2n + 4 per k
+            n = l
+            kc = (l * (l + 1)) // 2 + l
+            ks = kc - l
+            v = rll * norm[n]
+            vb = rllb * norm[n]
+            row[kc] = v * fc
+            rowb[kc] = vb * fcb
+            if l > 0:
+                row[ks] = v * sl
+                rowb[ks] = vb * slb
+            r_prev = 0.0
+            r_prevb = 0.0
+            rr = rll
+            rrb = rllb
+            for k in range(1, nk):
+                if k == 1:  # closed form
                     rn = ((fl + 2.0) * rho2 - (fl + 1.0)) * rll
-                    r_prev = rr
-                    rr = rn
-                elif k > 1:
+                    rnb = ((fl + 2.0) * rho2b - (fl + 1.0)) * rllb
+                else:
                     a = coef[col + k - 1, 0]
                     b = coef[col + k - 1, 1]
                     c = coef[col + k - 1, 2]
                     rn = (a * xx - b) * rr - c * r_prev
-                    r_prev = rr
-                    rr = rn
-                base = (n * (n + 1)) // 2
-                if l == 0:
-                    row[base + n // 2] = rr * norm[n] * _INV_SQRT2
-                else:
-                    v = rr * norm[n]
-                    row[base + (n + l) // 2] = v * cl
-                    row[base + (n - l) // 2] = v * sl
+                    rnb = (a * xxb - b) * rrb - c * r_prevb
+                r_prev = rr
+                rr = rn
+                r_prevb = rrb
+                rrb = rnb
+                kc += 2 * n + 4
+                ks += 2 * n + 4
+                n += 2
+                v = rr * norm[n]
+                vb = rrb * norm[n]
+                row[kc] = v * fc
+                rowb[kc] = vb * fcb
+                if l > 0:
+                    row[ks] = v * sl
+                    rowb[ks] = vb * slb
             col += nk
