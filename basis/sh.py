@@ -285,6 +285,8 @@ _LANES = 8
 _BLOCKS_PER_TASK = 32
 #: Degrees from which the lane kernel beats the per-point kernels (measured on two cores).
 _LANE_LMAX = 24
+#: From this degree on, output rows are touched sequentially before the scattered writes.
+_TOUCH_LMAX = 12
 
 
 def _row_tables(lmax: int, a: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
@@ -411,6 +413,11 @@ def _sh_pair_kernel(dirs, lmax, norm, a, b, d, off, smin, out):
             continue
         row = out[i]
         rowb = out[j]
+        if lmax >= _TOUCH_LMAX:
+            # a long row is written column by column, scattered over many cache lines: one
+            # sequential pass first brings them in as a stream
+            row[:] = 0.0
+            rowb[:] = 0.0
         cm = sqrt2
         sm = 0.0
         pmm = p00
