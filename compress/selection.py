@@ -54,25 +54,24 @@ from .truncate import PRECISIONS, lowrank, precision, unique_coefficients
 __all__ = ["DEFAULT_CANDIDATES", "NoCandidateError", "select"]
 
 FORMS = ("modal", "model", "hybrid")
+#: Stopping tolerance of the factored fits among the default candidates: on the
+#: gold-metallic-paint3 surrogate (rank 4) 1e-4 stops after 181 sweeps instead of 283 at
+#: 1e-6 with the same l2 error (0.0442 on independent pairs).
+_FACTORED_TOL = 1e-4
 METRICS = ("l2", "log")
 #: The default candidates: parametric lobes, a ladder of factored tables, low orders of
 #: the Zernike basis (broad materials) and factored lobes with a Zernike residual.
 DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
-    {"form": "model", "family": "lambert+ggx"},
-    {"form": "model", "family": "factored", "rank": 1, "bins": (32, 24)},
-    {"form": "model", "family": "factored", "rank": 2, "bins": (32, 24)},
-    {"form": "model", "family": "factored", "rank": 3, "bins": (24, 16, 8)},
-    {"form": "model", "family": "factored", "rank": 4, "bins": (32, 24, 8)},
-    {"form": "model", "family": "factored", "rank": 5, "bins": (32, 24, 8)},
-    {"form": "model", "family": "factored", "rank": 6, "bins": (40, 24, 8)},
-    {"form": "model", "family": "factored", "rank": 8, "bins": (48, 32, 8)},
+    {"form": "model", "family": "lambert+ggx", "restarts": 2},
+    *({"form": "model", "family": "factored", "rank": r, "bins": b, "tol": _FACTORED_TOL}
+      for r, b in ((1, (32, 24)), (2, (32, 24)), (3, (24, 16, 8)), (4, (32, 24, 8)),
+                   (5, (32, 24, 8)), (6, (40, 24, 8)), (8, (48, 32, 8)))),
     {"form": "modal", "kind": "zernike", "order": 4},
     {"form": "modal", "kind": "zernike", "order": 8},
     {"form": "modal", "kind": "zernike", "order": 12},
-    {"form": "hybrid", "family": "factored", "rank": 4, "bins": (32, 24, 8),
-     "kind": "zernike", "order": 4},
-    {"form": "hybrid", "family": "factored", "rank": 6, "bins": (40, 24, 8),
-     "kind": "zernike", "order": 6},
+    *({"form": "hybrid", "family": "factored", "rank": r, "bins": b, "tol": _FACTORED_TOL,
+       "kind": "zernike", "order": n} for r, b, n in ((4, (32, 24, 8), 4),
+                                                       (6, (40, 24, 8), 6))),
 )
 _FIT_KEYS = frozenset(project.fitting.FACTORED_OPTIONS) | {"restarts", "lobes", "n",
                                                              "max_nfev"}
