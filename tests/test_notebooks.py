@@ -1,4 +1,4 @@
-"""Execute every notebook in notebooks/ at small size (DESIGN.md: notebooks are run by the suite).
+"""Execute every notebook in notebooks/ at small size: the notebooks are part of the suite.
 
 Each notebook reads its size from environment variables named ``SCATMODES_NB_*`` (e.g.
 ``SCATMODES_NB_RAYS``); the values below make every notebook run in well under a minute.
