@@ -377,6 +377,16 @@ def _empty(k: int) -> dict[str, Any]:
 def _chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: int, nd: int,
            per: int, cosine: bool, acc: dict[str, Any]) -> None:
     """Trace directions start .. start + nd - 1 (``per`` rays each) and accumulate."""
+    _fold(acc, _chunk_delta(surface, basis, seed, start, nd, per, cosine))
+
+
+def _chunk_delta(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: int,
+                 nd: int, per: int, cosine: bool) -> dict[str, Any]:
+    """Trace directions start .. start + nd - 1 and return what they add (see :func:`_fold`).
+
+    A pure function of its arguments (counter-based streams), so a chunk traced again, on
+    another worker or after a retry, returns the same bits.
+    """
     u = incident_directions(nd, seed, start, cosine)
     out = _alloc(nd * per)
     if isinstance(surface, Scene):
@@ -389,7 +399,19 @@ def _chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: i
     bv = basis.eval(vdir)  # (nd * per, K)
     m = np.empty((bu.shape[1], bu.shape[1]))
     _accumulate_kernel(bu, c, bv, w, per, m)
-    n = nd * per
+    return {"m": m, "rays": nd * per, "reflected": float(w.sum()),
+            "absorbed": float(absorbed.sum()), "lost": float(lost.sum()),
+            "bounces": np.bincount(np.minimum(nb, BOUNCE_BINS), weights=w,
+                                   minlength=BOUNCE_BINS + 1)[1:]}
+
+
+def _fold(acc: dict[str, Any], delta: dict[str, Any]) -> None:
+    """Add one chunk's contribution to the accumulators.
+
+    Floating-point addition is not associative, so local and distributed runs both fold the
+    chunks through this one function in chunk order: that makes their results bit-identical.
+    """
+    m, n = delta["m"], delta["rays"]
     ms = 0.5 * (m + m.T)
     acc["sum"] += m
     acc["s2"] += ms * ms
@@ -397,11 +419,10 @@ def _chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: i
     acc["n2"] += float(n) * n
     acc["chunks"] += 1
     acc["rays"] += n
-    acc["reflected"] += float(w.sum())
-    acc["absorbed"] += float(absorbed.sum())
-    acc["lost"] += float(lost.sum())
-    acc["bounces"] += np.bincount(np.minimum(nb, BOUNCE_BINS), weights=w,
-                                  minlength=BOUNCE_BINS + 1)[1:]
+    acc["reflected"] += delta["reflected"]
+    acc["absorbed"] += delta["absorbed"]
+    acc["lost"] += delta["lost"]
+    acc["bounces"] += delta["bounces"]
 
 
 @pjit
