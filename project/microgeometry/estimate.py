@@ -188,6 +188,8 @@ def merge(*results: SimulationResult) -> SimulationResult:
             seeds.add(s)
     acc = {k: sum(r._acc[k] for r in results) for k in first._acc}
     meta = dict(first.meta, seeds=sorted(seeds))
+    if any("workers" in r.meta for r in results):
+        meta["workers"] = sorted({w for r in results for w in r.meta.get("workers", ())})
     return SimulationResult(acc, first.basis, meta)
 
 
@@ -204,6 +206,7 @@ def simulate(
     checkpoint_interval: float = 60.0,
     resume: str | os.PathLike | None = None,
     progress: bool | None = None,
+    client: Any = None,
 ) -> SimulationResult:
     """Estimate the coefficient matrix of f cos(theta_i) cos(theta_o) by Monte Carlo.
 
@@ -244,6 +247,11 @@ def simulate(
         with values no run can produce) is refused with a ValueError.
     progress : bool, optional
         Show a tqdm progress bar; None shows it for runs of 10^7 rays or more.
+    client : dask.distributed.Client, optional
+        Trace the chunks as tasks on this Dask cluster instead of in this process (needs
+        ``pip install 'scatmodes[distributed]'``). The result is bit-identical to the local
+        run's; ``result.meta["workers"]`` lists the addresses of the workers that traced
+        chunks in this call. See Notes.
 
     Returns
     -------
@@ -259,6 +267,11 @@ def simulate(
         For a damaged or incompatible ``resume`` file, or an unwritable ``checkpoint``.
     BlockingIOError
         If another run holds the lock of ``checkpoint``.
+    ImportError
+        If ``client`` is given and dask.distributed is not installed.
+    RuntimeError
+        If the cluster loses a chunk for good (its workers died repeatedly, or the client
+        was closed); the chunks folded so far are in the checkpoint.
 
     Notes
     -----
@@ -280,6 +293,18 @@ def simulate(
     ``fcntl`` is missing, the lock file is created with ``O_CREAT | O_EXCL`` instead, and a
     left-over one must be removed by hand.
 
+    Dask: the surface and basis are scattered to every worker once; each chunk of incident
+    directions is one task, a pure function of the seed and its first direction (counter-based
+    random streams), and at most a few tasks per worker are queued at a time. The results are
+    folded into the accumulators in chunk order, as in the local run, however the tasks finish,
+    so the sums are the same bits; a task that Dask runs again after its worker died returns
+    the same value and is counted once. The checkpoint (written by this process) holds the
+    chunks folded so far, and can be resumed with or without a client. A worker process traces
+    one chunk at a time with its share of the host's cores as numba threads, so start workers
+    with one thread each (``LocalCluster(n_workers=N, threads_per_worker=1)``). Workers need
+    scatmodes installed and, to avoid compiling the kernels in every process, a writable
+    ``NUMBA_CACHE_DIR``.
+
     Examples
     --------
     >>> import numpy as np
@@ -298,6 +323,8 @@ def simulate(
                         f"{type(basis).__name__}")
     rays = _positive_int(rays, "rays")
     seed_u = _seed(seed)
+    if client is not None:
+        _check_client(client)
     if incident not in ("cosine", "uniform"):
         raise ValueError(f"incident must be 'cosine' or 'uniform', got {incident!r}")
     targets = _positive_int(targets, "targets")
@@ -337,30 +364,195 @@ def simulate(
                      unit_scale=True, desc="simulate"))
         # (accumulators, directions done): replaced as a whole once a chunk is complete
         state = (acc, done)
+        workers: set[str] = set()
+        steps = _local_steps(surface, basis, seed_u, state, ndirs, chunk, targets, cosine,
+                             bar) if client is None else \
+            _distributed_steps(client, surface, basis, seed_u, state, ndirs, chunk, targets,
+                               cosine, bar, workers)
         last_save = time.perf_counter()
         try:
-            while state[1] < ndirs:
-                t0 = time.perf_counter()
-                acc, done = state
-                nd = min(chunk, ndirs - done)
-                new = _copy(acc)
-                _chunk(surface, basis, seed_u, done, nd, targets, cosine, new)
-                new["seconds"] += time.perf_counter() - t0
-                state = (new, done + nd)
-                if bar is not None:
-                    bar.update(nd * targets)
-                if checkpoint is not None and \
-                        time.perf_counter() - last_save >= checkpoint_interval:
-                    _save(checkpoint, *state, meta)
-                    last_save = time.perf_counter()
+            # closing: an interrupt between two steps still cancels the submitted tasks
+            with contextlib.closing(steps):
+                for state in steps:
+                    if checkpoint is not None and \
+                            time.perf_counter() - last_save >= checkpoint_interval:
+                        _save(checkpoint, *state, meta)
+                        last_save = time.perf_counter()
         except (KeyboardInterrupt, SystemExit, _Terminated):
             if checkpoint is not None:
+                _save_on_interrupt(checkpoint, *state, meta)
+            raise
+        except Exception:
+            # a cluster can fail (workers lost for good, a closed client) while the chunks
+            # folded so far are sound: keep them for resume
+            if checkpoint is not None and client is not None:
                 _save_on_interrupt(checkpoint, *state, meta)
             raise
         acc, done = state
         if checkpoint is not None:
             _save(checkpoint, acc, done, meta)
+    if client is not None:
+        # not in the checkpoint's meta: the workers are no property of the estimate
+        meta = dict(meta, workers=sorted(workers))
     return SimulationResult(acc, basis, meta)
+
+
+def _check_client(client: Any) -> None:
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ImportError("simulate(client=...) needs dask.distributed, which is not installed: "
+                          "pip install 'scatmodes[distributed]'") from None
+    if not isinstance(client, Client):
+        raise TypeError(f"client must be a dask.distributed.Client, got {type(client).__name__}")
+    if client.status != "running":
+        raise ValueError(f"client must be connected to a running cluster, its status is "
+                         f"{client.status!r}: create a new Client")
+
+
+def _local_steps(surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
+                 state: tuple[dict[str, Any], int], ndirs: int, chunk: int, per: int,
+                 cosine: bool, bar: Any) -> Iterator[tuple[dict[str, Any], int]]:
+    """Trace the chunks in this process; yield (accumulators, directions done) after each."""
+    acc, done = state
+    while done < ndirs:
+        t0 = time.perf_counter()
+        nd = min(chunk, ndirs - done)
+        new = _copy(acc)
+        _chunk(surface, basis, seed, done, nd, per, cosine, new)
+        new["seconds"] += time.perf_counter() - t0
+        acc, done = new, done + nd
+        if bar is not None:
+            bar.update(nd * per)
+        yield acc, done
+
+
+#: a worker process traces one chunk at a time: numba's default threading layer aborts the
+#: process when two threads launch parallel kernels at once, and the chunk's own numba
+#: threads already share the cores
+_WORKER_LOCK = threading.Lock()
+
+
+def _cpus() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # pragma: no cover - not Linux
+        return os.cpu_count() or 1
+
+
+def _remote_chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: int,
+                  nd: int, per: int, cosine: bool,
+                  processes: dict[str, int]) -> dict[str, Any]:
+    """Run :func:`_chunk_delta` on a Dask worker; add the worker's address to the result.
+
+    ``processes`` maps host to the number of worker processes on it: each chunk's numba
+    threads get that share of the host's cores (the result does not depend on it).
+    """
+    import numba
+    from distributed import get_worker
+
+    address = get_worker().address
+    host = _host(address)
+    threads = max(1, min(numba.config.NUMBA_NUM_THREADS, _cpus() // processes.get(host, 1)))
+    with _WORKER_LOCK:
+        numba.set_num_threads(threads)
+        delta = _chunk_delta(surface, basis, seed, start, nd, per, cosine)
+    delta["worker"] = address
+    return delta
+
+
+def _host(address: str) -> str:
+    from urllib.parse import urlsplit
+
+    return urlsplit(address).hostname or address
+
+
+def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
+                       seed: np.uint64, state: tuple[dict[str, Any], int], ndirs: int,
+                       chunk: int, per: int, cosine: bool, bar: Any,
+                       workers: set[str]) -> Iterator[tuple[dict[str, Any], int]]:
+    """Trace the chunks as tasks of a Dask cluster; yield states as :func:`_local_steps`.
+
+    Results are kept by chunk index and folded in index order as soon as the next one is
+    there, so the sums are those of the local run whatever the order in which tasks finish.
+    A task that Dask runs again (its worker died) returns the same value and is folded once.
+    """
+    import uuid
+
+    from distributed import CancelledError, KilledWorker, as_completed
+
+    acc, done = state
+    starts = list(range(done, ndirs, chunk))
+    if not starts:
+        return
+    info = client.scheduler_info()["workers"]
+    processes: dict[str, int] = {}
+    for addr in info:
+        processes[_host(addr)] = processes.get(_host(addr), 0) + 1
+    # a few tasks per worker queued so that none waits, and a bound on the results held
+    # out of order (each holds a (K, K) matrix) behind a slow or retried chunk
+    window = 2 * max(1, len(info)) + 2
+    ahead = 4 * window
+    # scattered once: the tasks refer to these copies instead of each carrying the scene
+    scene = client.scatter(surface, broadcast=True, hash=False)
+    shared_basis = client.scatter(basis, broadcast=True, hash=False)
+    prefix = f"scatmodes-simulate-{uuid.uuid4().hex}-"
+    pending: dict[int, Any] = {}
+    results: dict[int, dict[str, Any]] = {}
+    queue = as_completed()
+    nxt = folded = 0
+    t_last = time.perf_counter()
+
+    def submit() -> None:
+        nonlocal nxt
+        while nxt < len(starts) and len(pending) < window and nxt - folded < ahead:
+            nd = min(chunk, ndirs - starts[nxt])
+            fut = client.submit(_remote_chunk, scene, shared_basis, seed, starts[nxt], nd,
+                                per, cosine, processes, key=f"{prefix}{nxt}", pure=False)
+            pending[nxt] = fut
+            queue.add(fut)
+            nxt += 1
+
+    try:
+        submit()
+        for fut in queue:
+            i = int(fut.key[len(prefix):])
+            if i < folded or i in results or i not in pending:
+                continue  # already counted: a chunk is folded exactly once
+            try:
+                delta = fut.result()
+            except KilledWorker as err:
+                raise RuntimeError(
+                    f"simulate: chunk {i} (directions {starts[i]}..) was lost because the "
+                    f"workers running it died repeatedly ({err}); they may run out of "
+                    "memory: give them more memory or use a smaller chunk, then resume from "
+                    "the checkpoint") from None
+            except CancelledError:
+                raise RuntimeError(
+                    f"simulate: chunk {i} was cancelled on the cluster (was the client or "
+                    "the cluster closed during the run?); resume from the checkpoint with a "
+                    "running client") from None
+            del pending[i]
+            workers.add(delta.pop("worker"))
+            results[i] = delta
+            if bar is not None:
+                bar.update(delta["rays"])
+            while folded in results:
+                new = _copy(acc)
+                _fold(new, results.pop(folded))
+                now = time.perf_counter()
+                new["seconds"] += now - t_last  # wall time of the run, not summed worker time
+                t_last = now
+                acc, done = new, min(done + chunk, ndirs)
+                folded += 1
+                yield acc, done
+            submit()
+        if folded < len(starts):  # pragma: no cover - as_completed ends with every future
+            raise RuntimeError(f"simulate: the cluster returned {folded} of {len(starts)} "
+                               "chunks; resume from the checkpoint")
+    finally:
+        if pending:
+            client.cancel(list(pending.values()))
 
 
 def _copy(acc: dict[str, Any]) -> dict[str, Any]:
