@@ -447,6 +447,40 @@ def _raise_terminated(signum: int, frame: Any) -> None:
     raise _Terminated(128 + signum)
 
 
+#: seconds to wait for --scheduler: a wrong address fails fast instead of hanging
+_CONNECT_TIMEOUT = 5
+
+
+@contextlib.contextmanager
+def _dask_client(args: argparse.Namespace) -> Any:
+    """Yield the Dask client of ``--workers N`` or ``--scheduler ADDRESS`` (None without)."""
+    if args.workers is None and args.scheduler is None:
+        yield None
+        return
+    try:
+        from distributed import Client, LocalCluster
+    except ImportError:
+        raise UserError("--workers and --scheduler need dask.distributed, which is not "
+                        "installed: pip install 'scatmodes[distributed]'") from None
+    with contextlib.ExitStack() as stack:
+        if args.workers is not None:
+            # one thread per worker process: simulate gives each its share of the cores
+            cluster = stack.enter_context(LocalCluster(
+                n_workers=args.workers, threads_per_worker=1, processes=True,
+                dashboard_address=None))
+            client = stack.enter_context(Client(cluster))
+        else:
+            try:
+                client = Client(args.scheduler, timeout=_CONNECT_TIMEOUT)
+            except (OSError, ValueError) as err:
+                raise UserError(f"--scheduler {args.scheduler!r}: cannot connect "
+                                f"({' '.join(str(err).split())}); give the address the "
+                                "scheduler prints (e.g. tcp://host:8786) and check that it "
+                                "is running") from None
+            stack.enter_context(client)
+        yield client
+
+
 def _simulate(args: argparse.Namespace) -> int:
     from compress import save
     from project.microgeometry import Diffuse, GaussianSurface, Mirror, simulate
@@ -479,9 +513,10 @@ def _simulate(args: argparse.Namespace) -> int:
         f"; the rays traced so far are saved in {args.checkpoint!r}: continue with --resume "
         f"{args.checkpoint} --checkpoint {args.checkpoint}")
     try:
-        res = simulate(surface, b, rays=args.rays, seed=args.seed, checkpoint=args.checkpoint,
-                       checkpoint_interval=interval, resume=args.resume,
-                       progress=_progress(args))
+        with _dask_client(args) as client:
+            res = simulate(surface, b, rays=args.rays, seed=args.seed,
+                           checkpoint=args.checkpoint, checkpoint_interval=interval,
+                           resume=args.resume, progress=_progress(args), client=client)
     except KeyboardInterrupt:
         print(f"scatmodes simulate: interrupted{saved}", file=sys.stderr)
         return 130
@@ -748,6 +783,13 @@ def _parser() -> argparse.ArgumentParser:
                    help="seconds between checkpoints (default 60): at most this much work is "
                         "lost if the machine fails")
     s.add_argument("--resume", metavar="PATH", help="continue from this checkpoint")
+    dask = s.add_mutually_exclusive_group()
+    dask.add_argument("--workers", type=_count, default=None, metavar="N",
+                      help="trace on a local Dask cluster of N worker processes (needs "
+                           "scatmodes[distributed]; same result as without)")
+    dask.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                      help="trace on the running Dask cluster of this scheduler, e.g. "
+                           "tcp://host:8786 (needs scatmodes[distributed])")
     s.add_argument("-o", "--output", required=True, metavar="OUT.h5",
                    help=f"HDF5 file to write ({', '.join(HDF5_SUFFIXES)})")
     _add_progress(s)
