@@ -44,7 +44,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis
 from .jit import pjit, prange
-from .validation import as_directions, broadcast_batch, check_bytes
+from .validation import UNIT_ATOL, as_directions, broadcast_batch, check_bytes
 
 __all__ = ["Evaluator"]
 
@@ -52,6 +52,9 @@ __all__ = ["Evaluator"]
 _FORMS = {"zernike": 0, "harmonics": 1, "harmonics-even": 2, "sh": 3}
 #: Pairs per task of the parallel loop (scratch arrays are allocated once per task).
 _CHUNK = 128
+#: The kernel's length test on |w|^2: |w|^2 within this of 1 implies | |w| - 1 | within
+#: UNIT_ATOL, so it never accepts a vector that as_directions rejects.
+_QUICK_ATOL = 2.0 * UNIT_ATOL * (1.0 - UNIT_ATOL)
 #: Bytes of scratch per chunk of the dense path (basis tables and the product).
 _DENSE_BYTES = 2**25
 
@@ -121,6 +124,15 @@ class Evaluator:
         -------
         (...) or (..., channels) ndarray of float64
         """
+        if self.cm.is_isotropic and _plain_pairs(wi, wo):
+            # Already (n, 3) C-contiguous float64: the kernel checks the lengths as it goes,
+            # which saves the separate validation pass; only when its (slightly stricter)
+            # test flags a vector does the full validation run, to raise its message.
+            out = np.empty((wi.shape[0], self.channels))
+            if self._iso(wi, wo, out, _QUICK_ATOL):
+                as_directions(wi, "wi")
+                as_directions(wo, "wo")
+            return out[:, 0] if self.cm.is_scalar else out
         wi = as_directions(wi, "wi")
         wo = as_directions(wo, "wo")
         shape = broadcast_batch(wi, wo)
@@ -145,10 +157,16 @@ class Evaluator:
             Overwritten with the BRDF values.
         """
         if self.cm.is_isotropic:
-            _iso_kernel(wi, wo, self._coef, self._tri, _FORMS[self.cm.basis.kind], self.fcos,
-                        self.min_cos, out)
+            self._iso(wi, wo, out, np.inf)
         else:
             self._dense_flat(wi, wo, out)
+
+    def _iso(self, wi: NDArray, wo: NDArray, out: NDArray, atol: float) -> bool:
+        """Run the fused kernel; True if some |w|^2 is further than ``atol`` from 1 (or NaN)."""
+        flags = np.zeros((wi.shape[0] + _CHUNK - 1) // _CHUNK, dtype=np.uint8)
+        _iso_kernel(wi, wo, self._coef, self._tri, _FORMS[self.cm.basis.kind], self.fcos,
+                    self.min_cos, atol, flags, out)
+        return bool(flags.any())
 
     def _dense_flat(self, wi: NDArray, wo: NDArray, out: NDArray) -> None:
         b, nch = self.cm.basis, self.channels
@@ -167,6 +185,14 @@ class Evaluator:
                 q /= (di[:, 2] * do[:, 2])[:, None]
             q[(wi[k:k + n, 2] < 0) | (wo[k:k + n, 2] < 0)] = 0.0
             out[k:k + n] = q
+
+
+def _plain_pairs(wi: object, wo: object) -> bool:
+    """Tell whether two arrays are (n, 3), n > 0, C-contiguous float64: no conversion needed."""
+    return (isinstance(wi, np.ndarray) and isinstance(wo, np.ndarray)
+            and wi.dtype == np.float64 and wo.dtype == np.float64
+            and wi.ndim == 2 and wi.shape == wo.shape and wi.shape[0] > 0 and wi.shape[1] == 3
+            and wi.flags.c_contiguous and wo.flags.c_contiguous)
 
 
 def lift_to(w: NDArray[np.float64], min_cos: float) -> NDArray[np.float64]:
@@ -252,11 +278,14 @@ def _chebyshev_blocks(b: Basis, blocks: tuple[NDArray, ...]) -> tuple[NDArray, N
 
 
 @pjit
-def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, out):  # pragma: no cover - compiled
+def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, atol, flags,
+                out):  # pragma: no cover - compiled
     # wi, wo: (n, 3) unit vectors; coef: (nb, nc, K) packed Chebyshev blocks; tri: (nb,)
     # packed length per block; form: 0 zernike, 1 odd, 2 even, 3 sh; out: (n, nc).
-    # Pairs in tasks of _CHUNK: the per-pair factors are stored lane by lane (sp: (K, chunk),
-    # wm: (nb, chunk)) so the multiply-adds of phase 2 run over contiguous lanes (SIMD).
+    # flags (ntask,): set to 1 for a task holding a vector with | |w|^2 - 1 | > atol or NaN.
+    # Pairs in tasks of _CHUNK lanes. Only phase 1 (the geometry of each pair) is scalar;
+    # every later loop runs over the contiguous lanes of one quantity (Chebyshev values,
+    # their products, the azimuthal powers, the block sums), so it vectorises.
     n = wi.shape[0]
     nb, nc, npk = coef.shape[0], coef.shape[1], coef.shape[2]
     kmax = int(round((math.sqrt(8 * npk + 1) - 1) / 2))
@@ -264,25 +293,35 @@ def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, out):  # pragma: no cove
     lift = min_cos if fcos else 0.0
     s_lift = math.sqrt(1.0 - lift * lift)
     for task in prange(ntask):
-        ti = np.empty(kmax + 1)
-        to = np.empty(kmax + 1)
+        ti = np.empty((max(kmax, 2), _CHUNK))
+        to = np.empty((max(kmax, 2), _CHUNK))
         sp = np.empty((npk, _CHUNK))
         wm = np.empty((nb, _CHUNK))
+        wr = np.empty(_CHUNK)
+        wim = np.empty(_CHUNK)
         scale = np.empty(_CHUNK)
         acc = np.empty(_CHUNK)
         tot = np.empty(_CHUNK)
         p0 = task * _CHUNK
         lanes = min(n, p0 + _CHUNK) - p0
-        # phase 1: per-pair factors
+        bad = False
+        for j in range(lanes):
+            p = p0 + j
+            qi = wi[p, 0] * wi[p, 0] + wi[p, 1] * wi[p, 1] + wi[p, 2] * wi[p, 2]
+            qo = wo[p, 0] * wo[p, 0] + wo[p, 1] * wo[p, 1] + wo[p, 2] * wo[p, 2]
+            bad |= not (abs(qi - 1.0) <= atol and abs(qo - 1.0) <= atol)
+        flags[task] = bad
+        # phase 1: per-pair geometry. Pairs below the horizon get harmless factors and
+        # scale 0 (their value is set to 0 at the end).
         for j in range(lanes):
             p = p0 + j
             ix, iy, iz = wi[p, 0], wi[p, 1], wi[p, 2]
             ox, oy, oz = wo[p, 0], wo[p, 1], wo[p, 2]
             if iz < 0.0 or oz < 0.0:  # below the horizon: 0
-                for t in range(npk):
-                    sp[t, j] = 0.0
-                for m in range(nb):
-                    wm[m, j] = 0.0
+                ti[1, j] = 0.0
+                to[1, j] = 0.0
+                wr[j] = 0.0
+                wim[j] = 0.0
                 scale[j] = 0.0
                 continue
             r = 1.0 / math.sqrt(ix * ix + iy * iy + iz * iz)
@@ -313,32 +352,43 @@ def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, out):  # pragma: no cove
             else:
                 xi, xo = 2.0 * iz * iz - 1.0, 2.0 * oz * oz - 1.0
                 fi, fo = 1.0, 1.0
-            ti[0] = 1.0
-            to[0] = 1.0
-            ti[1] = xi
-            to[1] = xo
-            for a in range(2, kmax):
-                ti[a] = 2.0 * xi * ti[a - 1] - ti[a - 2]
-                to[a] = 2.0 * xo * to[a - 1] - to[a - 2]
-            t = 0
-            for b in range(kmax):
-                for a in range(b):
-                    sp[t, j] = ti[a] * to[b] + ti[b] * to[a]
-                    t += 1
-                sp[t, j] = ti[b] * to[b]
-                t += 1
+            ti[1, j] = xi
+            to[1, j] = xo
             ar, ai = ix * fi, iy * fi
             br, bi = ox * fo, -oy * fo
-            wr = ar * br - ai * bi
-            wim = ar * bi + ai * br
-            pr, pim = 1.0, 0.0  # Re (a_i conj a_o)^m
-            for m in range(nb):
-                wm[m, j] = pr
-                pr, pim = pr * wr - pim * wim, pr * wim + pim * wr
+            wr[j] = ar * br - ai * bi
+            wim[j] = ar * bi + ai * br
             if form == 1:  # g = z: q = z_i z_o S
                 scale[j] = 1.0 if fcos else iz * oz
             else:
                 scale[j] = 1.0 / (iz * oz) if fcos else 1.0
+        # Chebyshev values T_a(x) of both directions
+        for j in range(lanes):
+            ti[0, j] = 1.0
+            to[0, j] = 1.0
+        for a in range(2, kmax):
+            for j in range(lanes):
+                ti[a, j] = 2.0 * ti[1, j] * ti[a - 1, j] - ti[a - 2, j]
+                to[a, j] = 2.0 * to[1, j] * to[a - 1, j] - to[a - 2, j]
+        # symmetrised products S_ab, packed column by column (see _chebyshev_blocks)
+        t = 0
+        for b in range(kmax):
+            for a in range(b):
+                for j in range(lanes):
+                    sp[t, j] = ti[a, j] * to[b, j] + ti[b, j] * to[a, j]
+                t += 1
+            for j in range(lanes):
+                sp[t, j] = ti[b, j] * to[b, j]
+            t += 1
+        # Re (a_i conj a_o)^m
+        for j in range(lanes):
+            wm[0, j] = 1.0
+            acc[j] = 0.0  # Im of the running power
+        for m in range(1, nb):
+            for j in range(lanes):
+                pr, pim = wm[m - 1, j], acc[j]
+                wm[m, j] = pr * wr[j] - pim * wim[j]
+                acc[j] = pr * wim[j] + pim * wr[j]
         # phase 2: sum_m wm_m sum_t C_m,t sp_t, lane-parallel
         for c in range(nc):
             for j in range(lanes):
@@ -363,4 +413,4 @@ def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, out):  # pragma: no cove
                 for j in range(lanes):
                     tot[j] += wm[m, j] * acc[j]
             for j in range(lanes):
-                out[p0 + j, c] = tot[j] * scale[j]
+                out[p0 + j, c] = tot[j] * scale[j] if scale[j] != 0.0 else 0.0

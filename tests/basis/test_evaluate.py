@@ -133,3 +133,23 @@ def test_errors(rng):
         cm.eval([0, 0, 2.0], [0, 0, 1.0])
     with pytest.raises(ValueError, match="broadcastable batch shapes"):
         cm.eval(random_directions(rng, 3), random_directions(rng, 4))
+
+
+def test_plain_arrays_are_checked_inside_the_kernel(rng):
+    # (n, 3) float64 C-contiguous pairs skip the separate validation pass: the kernel tests
+    # |w|^2 and only a flagged vector runs as_directions, so the accepted set is unchanged
+    b = basis.HemiZernike(4)
+    x = rng.normal(size=(b.size, b.size))
+    cm = CoefficientMatrix(b, x + x.T)
+    wi = random_directions(rng, 300, upper=True)
+    wo = random_directions(rng, 300, upper=True)
+    ref = cm.eval(wi.tolist(), wo.tolist())  # the general path
+    np.testing.assert_array_equal(cm.eval(wi, wo), ref)
+    near = wi.copy()
+    near[7] *= 1 + 0.99e-6  # inside UNIT_ATOL, outside the kernel's stricter test
+    np.testing.assert_allclose(cm.eval(near, wo), ref, rtol=1e-12, atol=0)
+    for value, match in ((1 + 2e-6, "wo must be unit vectors"), (np.nan, "wo must be finite")):
+        bad = wo.copy()
+        bad[123] *= value
+        with pytest.raises(ValueError, match=match):
+            cm.eval(wi, bad)
