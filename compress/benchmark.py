@@ -114,6 +114,12 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
     -------
     list of dict
         One row per material, as written to ``materials.csv``.
+
+    Raises
+    ------
+    RuntimeError
+        Some materials failed (after the tables of the others are written); the message
+        names the first and why. A new call retries only those.
     """
     folder, out = Path(folder), Path(out)
     if not folder.is_dir():
@@ -136,9 +142,13 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
     job = dict(tols=tols, candidates=None if candidates is None else list(candidates),
                error_n=error_n)
     bar = _bar(len(names), len(names) - len(todo), progress)
+    failed: dict[str, str] = {}  # a material that fails is reported; the others go on
     if workers <= 1 or len(todo) <= 1:
         for n in todo:
-            _run_one(str(folder / f"{n}.binary"), str(out), job)
+            try:
+                _run_one(str(folder / f"{n}.binary"), str(out), job)
+            except (ValueError, OSError, RuntimeError, MemoryError) as e:
+                failed[n] = f"{type(e).__name__}: {e}"
             bar.update(1)
     else:
         with _threads_per_worker(workers), ProcessPoolExecutor(
@@ -146,10 +156,17 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
             futures = {pool.submit(_run_one, str(folder / f"{n}.binary"), str(out), job): n
                        for n in todo}
             for fut in as_completed(futures):
-                fut.result()  # a failure in a worker is raised here, with its material
+                try:
+                    fut.result()
+                except (ValueError, OSError, RuntimeError, MemoryError) as e:
+                    failed[futures[fut]] = f"{type(e).__name__}: {e}"
                 bar.update(1)
     bar.close()
     rows, cands = [], []
+    names = [n for n in names if n not in failed]
+    if not names:
+        first = next(iter(failed.items()))
+        raise RuntimeError(f"all {len(failed)} materials failed: {first[0]}: {first[1]}")
     for n in names:
         rec = json.loads((out / "materials" / f"{n}.json").read_text())
         rows.append(rec["row"])
@@ -160,6 +177,11 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
     with atomic_path(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2))
     _chart(cands, out / "pareto.png")
+    if failed:
+        first = next(iter(failed.items()))
+        raise RuntimeError(f"{len(failed)} of {len(failed) + len(names)} materials failed "
+                           f"(the tables in {str(out)!r} hold the others; run again to retry "
+                           f"them): {first[0]}: {first[1]}")
     return rows
 
 

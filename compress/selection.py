@@ -117,7 +117,8 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
         Any object with ``eval(wi, wo)``, ``channels`` and ``isotropic`` returning finite
         values >= 0: an analytic model, :func:`project.measured.read_merl`, ...
     tol : float
-        Tolerance, > 0, on ``metric`` (or on the radiance error with ``scene``).
+        Tolerance, > 0, on ``metric`` (or on the radiance error with ``scene``); ``inf``
+        returns the smallest candidate that can be built.
     metric : {"l2", "log"}
         ``"l2"``: relative L2 error of q = f cos(theta_i) cos(theta_o) over H x H, the
         largest over the channels; ``"log"``: RMS of log(1 + f cos(theta_i)) differences
@@ -189,9 +190,9 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
     >>> rep.family, rep.info["dtype"], rep.info["bytes"]
     ('lambert+ggx', 'float16', 16)
     """
-    if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and tol > 0
-            and math.isfinite(tol)):
-        raise ValueError(f"tol must be a positive number, got {tol!r}")
+    if not (isinstance(tol, (int, float)) and not isinstance(tol, bool) and tol > 0):
+        raise ValueError(f"tol must be a positive number (inf: the smallest candidate), "
+                         f"got {tol!r}")
     metric = choice(metric, "metric", METRICS)
     dtypes = _dtypes(dtypes)
     if not callable(getattr(brdf, "eval", None)):

@@ -58,6 +58,27 @@ def test_tables_chart_and_resume(folder, tmp_path):
     assert not list(out.glob(".*tmp*"))  # no temporary file left behind
 
 
+def test_a_failing_material_does_not_stop_the_others(folder, tmp_path):
+    """A damaged file is reported by name after the tables of the others are written."""
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    (mixed / "matte.binary").symlink_to(folder / "matte.binary")
+    (mixed / "broken.binary").write_bytes(b"not a MERL table")
+    out = tmp_path / "out"
+    with pytest.raises(RuntimeError, match="1 of 2 materials failed .* broken: ValueError"):
+        benchmark_merl(mixed, out, workers=1, candidates=CANDS[:1], error_n=4096)
+    assert [r["material"] for r in _csv(out / "materials.csv")] == ["matte"]
+    with pytest.raises(RuntimeError, match="all 1 materials failed"):
+        benchmark_merl(mixed, out, workers=1, materials=["broken"], candidates=CANDS[:1])
+
+
+def _csv(path):
+    import csv
+
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
 def test_bad_arguments(folder, tmp_path):
     with pytest.raises(NotADirectoryError, match="no folder"):
         benchmark_merl(tmp_path / "nowhere", tmp_path / "o")

@@ -105,6 +105,7 @@ def test_failed_candidates_are_reported_not_raised():
 @pytest.mark.parametrize(("kwargs", "error", "match"), [
     ({"tol": 0.0}, ValueError, "tol must be a positive number"),
     ({"tol": math.nan}, ValueError, "tol must be a positive number"),
+    ({"tol": -math.inf}, ValueError, "tol must be a positive number"),
     ({"metric": "max"}, ValueError, "metric"),
     ({"candidates": [{"form": "spline"}]}, ValueError, "candidate form"),
     ({"candidates": [{"form": "modal", "kind": "zernike"}]}, ValueError, "needs \\['order'\\]"),
