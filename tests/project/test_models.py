@@ -1,6 +1,7 @@
 """Analytic BRDF models: the contract properties for every model (reciprocity, non-negativity,
-horizon, shapes, isotropy, energy), closed forms and limits, the digests' reference values
-(with the ones found wrong), the Fresnel and Smith helpers, and parameter validation."""
+horizon, shapes, isotropy, energy), closed forms and limits, reference albedos (printed in
+the papers or computed independently by quadrature, with the ones found wrong), the Fresnel
+and Smith helpers, and parameter validation."""
 
 from __future__ import annotations
 
@@ -258,8 +259,10 @@ def test_phong_albedo_at_normal_incidence_is_kd_plus_ks(n):
     assert a == pytest.approx(0.9, rel=0, abs=1e-13)
 
 
-def test_phong_albedo_digest_values():
-    # digest 002 section 1.2b [derived], three decimals: n = 10 at 0, 30, 60, 85 degrees and
+def test_phong_albedo_reference_values():
+    # normalised lobe (n + 2)/(2 pi) cos^n alpha (Lafortune et al. 1997 eqs 1-2); albedos not
+    # printed there, computed independently by adaptive quadrature (scipy dblquad, 1e-9) about
+    # the mirror direction, rounded to three decimals: n = 10 at 0, 30, 60, 85 degrees and
     # n = 100 at 60, 85 degrees; quadrature error by doubling is < 1e-5 at these node counts
     a10 = _albedo(Phong(0.0, 1.0, 10), np.array([0.0, 30.0, 60.0, 85.0]), 64, 128)
     np.testing.assert_allclose(a10, [1.000, 0.866, 0.505, 0.171], rtol=0, atol=5e-4)
@@ -267,10 +270,10 @@ def test_phong_albedo_digest_values():
     np.testing.assert_allclose(a100, [0.500, 0.098], rtol=0, atol=5e-4)
 
 
-def test_blinn_phong_digest_values():
-    # digest 002 section 1.2c: (n+1)/(8 pi)(n.h)^n with n = 1000 has albedo 0.995, 0.747,
-    # 0.250 at 0, 30, 60 degrees (-> cos^2); three decimals, the 256 x 1024 rule is within
-    # 1e-4 of its doubling for this lobe
+def test_blinn_phong_albedo_reference_values():
+    # (n+1)/(8 pi)(n.h)^n with n = 1000 has albedo 0.995, 0.747, 0.250 at 0, 30, 60 degrees
+    # (-> cos^2), computed independently by adaptive quadrature over the half vector (scipy
+    # dblquad, 1e-9), three decimals; the 256 x 1024 rule is within 1e-4 of its doubling
     a = _albedo(BlinnPhong(0.0, 1.0, 1000), np.array([0.0, 30.0, 60.0]), 256, 1024)
     np.testing.assert_allclose(a, [0.995, 0.747, 0.250], rtol=0, atol=6e-4)
 
@@ -279,10 +282,12 @@ def test_ward_original_albedo_caveat():
     f = Ward(0.0, 1.0, 0.1, 0.1)
     deg = np.array([0.0, 30.0, 60.0, 80.0])
     a = _albedo(f, deg, 256, 512)
-    # digest 002 section 1.10 table (alpha = 0.1), three decimals
+    # Ward 1992 eq 4, alpha = 0.1: albedos computed independently by adaptive quadrature over
+    # the half vector (scipy dblquad, 1e-9), three decimals (not printed in the paper)
     np.testing.assert_allclose(a, [0.971, 0.842, 0.489, 0.184], rtol=0, atol=6e-4)
     # the caveat: albedo ~ ks cos(theta_i) for a narrow lobe (alpha = 0.05: within 1 % at
-    # 30 and 60 degrees, digest 0.860, 0.497, i.e. 0.993 and 0.994 of the cosine)
+    # 30 and 60 degrees; the same quadrature gives 0.860, 0.497, i.e. 0.993 and 0.994 of
+    # the cosine)
     narrow = _albedo(Ward(0.0, 1.0, 0.05, 0.05), np.array([30.0, 60.0]), 256, 512)
     np.testing.assert_allclose(narrow / np.cos(np.radians([30.0, 60.0])), 1.0, rtol=1e-2)
 
@@ -291,7 +296,8 @@ def test_ward_original_diverges_at_grazing_bounded_does_not():
     deg = np.array([89.9])
     orig = Ward(0.0, 1.0, 0.3, 0.3)
     coarse, fine = _albedo(orig, deg, 256, 512), _albedo(orig, deg, 512, 1024)
-    # digest: 1.04 at 89.9 degrees for alpha = 0.3; the doubling moves it by < 0.01
+    # 1.04 at 89.9 degrees for alpha = 0.3 (adaptive half-vector quadrature, scipy dblquad:
+    # 1.037); the doubling moves it by < 0.01
     assert abs(fine - coarse) < 0.01 and fine == pytest.approx(1.04, abs=0.01)
     assert fine - abs(fine - coarse) > 1.0
     bounded = Ward(0.0, 1.0, 0.3, 0.3, variant="bounded")
@@ -391,8 +397,10 @@ def test_lafortune_special_cases(unit_vectors):
 
 
 def test_lafortune_blue_paint_lobe_albedo():
-    # digest 002 section 4.2 [derived]: albedo of the three lobes of Table 1, printed to
-    # 4 (then 3) decimals; this rule is within 2e-5 of its doubling
+    # the three lobes of Lafortune et al. 1997 Table 1 (blue paint): their albedo is not
+    # printed there; computed independently by adaptive quadrature over the exit hemisphere
+    # (scipy dblquad, 1e-9), rounded to 4 (then 3) decimals; this rule is within 2e-5 of its
+    # doubling
     deg = np.array([0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 85.0])
     a = _albedo(Lafortune(0.0, BLUE_PAINT), deg, 256, 512)
     ref = np.array([0.0024, 0.0040, 0.0096, 0.0187, 0.0303, 0.069, 0.080])
@@ -406,12 +414,15 @@ def test_lafortune_blue_paint_lobe_albedo():
     (1, [0.250, 0.284, 0.375, 0.457, 0.496]),
     (10, [0.696, 0.688, 0.613, 0.539, 0.504]),
     (100, [0.961, 0.934, 0.846, 0.660, 0.517]),
-    # the digest prints 0.703 at 89 degrees: adaptive quadrature over the half vector (scipy
-    # dblquad) gives 0.55455, and this rule converges to it (2048 x 8192: 0.55455)
+    # at 89 degrees a previously quoted 0.703 is wrong: adaptive quadrature over the half
+    # vector (scipy dblquad) gives 0.55455, and this rule converges to it (2048 x 8192:
+    # 0.55455)
     (1000, [0.996, 0.983, 0.954, 0.856, 0.5546]),
 ])
 def test_ashikhmin_shirley_specular_albedo(n, expected):
-    # digest 002 section 4.7, R_s = 1 (F = 1), three decimals, 0, 30, 60, 80 degrees: the
+    # Ashikhmin & Shirley 2000 eq 10 with R_s = 1 (F = 1) at 0, 30, 60, 80 degrees: computed
+    # independently by adaptive quadrature over the half vector (scipy dblquad, 1e-9), three
+    # decimals (the paper prints only a furnace estimate, about 68 % at n = 10, Fig 2); the
     # 256 x 512 rule is within 1e-4 of its doubling
     f = AshikhminShirley(0.0, 1.0, n, n)
     a = _albedo(f, np.array([0.0, 30.0, 60.0, 80.0]), 256, 512)
@@ -424,7 +435,9 @@ def test_ashikhmin_shirley_specular_albedo(n, expected):
 def test_ashikhmin_shirley_anisotropic_and_total_albedo():
     deg = np.array([0.0, 60.0, 80.0])
     a = _albedo(AshikhminShirley(0.0, 1.0, 10, 1000), deg, 256, 1024)
-    np.testing.assert_allclose(a, [0.839, 0.667, 0.557], rtol=0, atol=6e-4)  # digest 4.7
+    # both sets computed independently by adaptive half-vector quadrature (scipy dblquad,
+    # 1e-9; n_u along x, k1 in the xz-plane), three decimals
+    np.testing.assert_allclose(a, [0.839, 0.667, 0.557], rtol=0, atol=6e-4)
     deg = np.array([0.0, 30.0, 60.0, 80.0, 89.0])
     a = _albedo(AshikhminShirley(1.0, 0.05, 100, 100), deg, 256, 1024)
     np.testing.assert_allclose(a, [0.968, 0.941, 0.794, 0.568, 0.380], rtol=0, atol=6e-4)
@@ -439,7 +452,7 @@ def test_ashikhmin_shirley_diffuse_albedo_closed_form():
     # the identical specular parts cancel to rounding
     np.testing.assert_allclose(both - spec, 0.95 * (1 - (1 - mu / 2) ** 5), rtol=0,
                                atol=1e-13)
-    assert (both - spec)[0] == pytest.approx(0.9203, abs=5e-5)  # digest: 0.95 (1 - 2^-5)
+    assert (both - spec)[0] == pytest.approx(0.9203, abs=5e-5)  # 0.95 (1 - 2^-5) = 0.9203125
 
 
 # -- Cook-Torrance, Smith and Fresnel -------------------------------------------------------
@@ -447,10 +460,12 @@ def test_ashikhmin_shirley_diffuse_albedo_closed_form():
 CT_DEGREES = np.array([0.0, 30.0, 45.0, 60.0, 75.0, 85.0])
 
 
-def test_cook_torrance_he1991_matches_digest_single_scatter_albedo():
-    # digest 002 sections 2.11 / 5.4 item 2 (m = 0.3077, F = 1), three decimals. These are
-    # reproduced only with Smith's 1967 S = (1 - erfc(a)/2) / (1 + Lambda) (He eq 23 with the
-    # exp fix), i.e. shadowing="he1991"; the rule is within 1e-4 of its doubling.
+def test_cook_torrance_he1991_single_scatter_albedo():
+    # Beckmann m = 0.3077 (2 sigma/tau of Westin et al. 1992 section 5.1), F = 1: computed
+    # independently by adaptive quadrature over the half vector (scipy dblquad, 1e-9), three
+    # decimals. These are reproduced only with Smith's 1967 S = (1 - erfc(a)/2) / (1 + Lambda)
+    # (He et al. 1991 eqs 23-24, eq 25 with the exp(-a^2) fix), i.e. shadowing="he1991"; the
+    # rule is within 1e-4 of its doubling.
     f = CookTorrance(0.0, 0.3077, shadowing="he1991")
     np.testing.assert_allclose(_albedo(f, CT_DEGREES, 256, 512),
                                [0.999, 0.982, 0.947, 0.887, 0.766, 0.583], rtol=0, atol=6e-4)
@@ -508,8 +523,9 @@ def test_smith_lambda_against_its_definition(distribution):
         assert got == pytest.approx(ref, rel=1e-9, abs=1e-15)  # quad's tolerance
 
 
-def test_smith_shadowing_digest_values_and_erratum():
-    # digest 002 section 5.2: Smith S (He eq 23 numerator, exp fix) for m = 0.3077
+def test_smith_shadowing_values_and_erratum():
+    # Smith S (He et al. 1991 eq 24, eq 25 with the exp(-a^2) fix) for m = 0.3077; the
+    # expected values are that closed form evaluated independently, rounded to four decimals
     m = 0.3077
     theta = np.radians([60.0, 70.0, 80.0, 85.0, 89.0])
     a = 1 / (np.tan(theta) * m)
@@ -551,7 +567,8 @@ def test_fresnel_against_textbook(n, k, rng):
 
 def test_fresnel_known_values():
     assert fresnel(1.0, 1.5) == pytest.approx(0.04, rel=1e-14)
-    assert fresnel(0.5, 1.5) == pytest.approx(0.08919, abs=5e-6)  # digest 1.4, 60 degrees
+    # 60 degrees: textbook (|r_s|^2 + |r_p|^2)/2 evaluated independently, 0.0891867
+    assert fresnel(0.5, 1.5) == pytest.approx(0.08919, abs=5e-6)
     assert np.all(fresnel([0.0, 0.3, 1.0], 1.0) <= 1e-30)  # index matched: 0 up to rounding
     # n < 1 (denser incident medium) beyond the critical angle: total reflection
     assert fresnel(np.cos(np.radians(60.0)), 1 / 1.5) == pytest.approx(1.0, abs=1e-15)

@@ -20,8 +20,10 @@ def test_gaussian_surface_statistics(big):
     # value of a 256-tau period deviates by ~1/sqrt(256^2 / pi) ~ 0.7 %, allow 3 %
     c = np.mean(h * np.roll(h, 4, axis=1))
     assert abs(c - np.exp(-1.0)) < 0.03
-    # mesh slopes: m = 2 sigma/tau lowered by triangulation to sqrt(0.969) (digest 2.10),
-    # 1.6 %; sampling adds < 1 %
+    # mesh slopes: m = 2 sigma/tau lowered by triangulation: a facet's slope is a difference
+    # over one grid step d, whose per-axis variance is 2 sigma^2 (1 - exp(-d^2/tau^2)) / d^2
+    # against 2 sigma^2 / tau^2 for the continuum, a factor 16 (1 - exp(-1/16)) = 0.969 at
+    # d = tau/4, so m is sqrt(0.969), 1.6 % low; sampling adds < 1 %
     assert abs(big.roughness / (big.nominal_roughness * np.sqrt(0.969)) - 1.0) < 0.02
 
 

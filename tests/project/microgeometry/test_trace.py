@@ -70,11 +70,12 @@ def test_roulette_is_unbiased():
 def test_single_bounce_fraction_is_separable_smith(big):
     # fraction of rays leaving after one reflection vs the single-scatter albedo of
     # Beckmann + separable Smith at the mesh's measured m (models docstring: 0.9996, 0.990,
-    # 0.964, 0.920, 0.901, 0.936 at m = 0.3077). The he1991 form (0.999 ... 0.766, 0.583:
-    # digest 5.4 item 2) is far off at 75-85 degrees. Binomial error <= 1.1e-3 at 2e5 rays;
-    # the real surface is less shadowed than the separable form near grazing (heights and
-    # shadowing are correlated), hence the one-sided allowances of 0.015 at 75 and 0.03 at
-    # 85 degrees (measured excess 0.010 and 0.024).
+    # 0.964, 0.920, 0.901, 0.936 at m = 0.3077). The he1991 form (0.999 ... 0.766, 0.583,
+    # test_models.py::test_cook_torrance_he1991_single_scatter_albedo) is far off at 75-85
+    # degrees. Binomial error <= 1.1e-3 at 2e5 rays; the real surface is less shadowed than
+    # the separable form near grazing (heights and shadowing are correlated), hence the
+    # one-sided allowances of 0.015 at 75 and 0.03 at 85 degrees (measured excess 0.010 and
+    # 0.024).
     ct = CookTorrance(0.0, big.roughness)
     for theta, up in [(0.0, 0.006), (30.0, 0.006), (45.0, 0.008), (60.0, 0.008),
                       (75.0, 0.015), (85.0, 0.03)]:
