@@ -2,8 +2,9 @@
 PYTHON ?= python3
 VENV := .venv
 BIN := $(VENV)/bin
-# numba compiles each kernel once and caches it next to the module
-export NUMBA_CACHE_DIR ?= $(CURDIR)/.numba_cache
+# numba compiles each kernel once and caches it next to the module (or, where that folder is
+# read-only, under the user's cache folder): no NUMBA_CACHE_DIR here, so `make demo`, the
+# console script, python -m and notebooks all share one cache
 
 .PHONY: demo test bench lint clean
 
@@ -29,6 +30,7 @@ test: $(VENV)/.installed-test
 bench: $(VENV)/.installed-test
 	$(BIN)/python -m pip install --quiet -e '.[test,bench]'
 	$(BIN)/python tests/benchmarks/bench_basis.py
+	$(BIN)/python tests/benchmarks/bench_eval.py
 	$(BIN)/python tests/benchmarks/bench_project.py
 	$(BIN)/python tests/benchmarks/bench_simulate.py
 	$(BIN)/python tests/benchmarks/bench_compress.py
