@@ -337,7 +337,7 @@ def _project(args: argparse.Namespace) -> int:
     from compress import save
     from project import project
 
-    out = _output_file(args.output)
+    out = _hdf5_output(args.output)
     brdf = _source(args)
     b = _basis(args.basis, args.order)
     tol = args.tol if args.tol is not None else (1e-3 if args.merl is not None else 1e-6)

@@ -414,7 +414,9 @@ SIM = ["simulate", "--sigma", "1", "--tau", "6.5", "--resolution", "16", "--orde
     [*SIM, "-o", "{tmp}/x.txt"],
     [*SIM, "-o", "{tmp}/x"],
     ["fit", "{tmp}/t.txt", "-o", "{tmp}/x.csv"],
-], ids=["simulate-txt", "simulate-none", "fit-csv"])
+    ["project", "Lambert", "--order", "2", "-o", "{tmp}/x.npz"],
+    ["convert", "{tmp}/t.txt", "--order", "2", "-o", "{tmp}/x.json"],
+], ids=["simulate-txt", "simulate-none", "fit-csv", "project-npz", "convert-json"])
 def test_output_suffix_must_be_hdf5(tmp_path, capsys, argv):
     (tmp_path / "t.txt").write_text("10 0 20 0 0.1\n")
     argv = [a.format(tmp=tmp_path) for a in argv]
