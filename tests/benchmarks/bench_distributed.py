@@ -39,18 +39,22 @@ import numpy as np
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("--size", type=int, default=512, help="grid points per side")
-    p.add_argument("--rays", type=int, default=1_000_000, help="incident rays per run")
+    p.add_argument("--size", type=int, default=None, help="grid points per side (512)")
+    p.add_argument("--rays", type=int, default=None, help="incident rays per run (1000000)")
     p.add_argument("--order", type=int, default=8, help="HemiZernike order")
     p.add_argument("--chunk", type=int, default=None,
                    help="directions per chunk (task); default simulate's")
     p.add_argument("--workers", default="1,2", help="worker process counts, comma-separated")
-    p.add_argument("--repeats", type=int, default=2, help="timed runs; the best is reported")
+    p.add_argument("--repeats", type=int, default=None,
+                   help="timed runs; the best is reported (2)")
     p.add_argument("--quick", action="store_true",
-                   help="reduced run: --size 128 --rays 200000 --repeats 1")
+                   help="reduced run: defaults --size 128 --rays 200000 --repeats 1")
     args = p.parse_args(argv)
-    if args.quick:
-        args.size, args.rays, args.repeats = 128, 200_000, 1
+    # --quick changes the defaults only: sizes given explicitly win
+    for key, full, quick in (("size", 512, 128), ("rays", 1_000_000, 200_000),
+                             ("repeats", 2, 1)):
+        if getattr(args, key) is None:
+            setattr(args, key, quick if args.quick else full)
     try:
         args.workers = [int(w) for w in args.workers.split(",")]
     except ValueError:
