@@ -311,12 +311,11 @@ def _seed_floor(lmax: int, norm: float) -> float:
 def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, out):
     """Dispatch to the fastest kernel; all of them give bit-identical values."""
     off = triangular_offsets(lmax)
+    # two kernels only (each compiles once, on first use): fewer to compile on a cold start
     if lmax >= _LANE_LMAX:
         _sh_lane_kernel(dirs, lmax, parity, norm, a, b, d, off, rows[0], rows[1], smin, out)
-    elif parity == 2:
-        _sh_pair_kernel(dirs, lmax, norm, a, b, d, off, smin, out)
     else:
-        _sh_kernel(dirs, lmax, parity, norm, a, b, d, off, out)
+        _sh_pair_kernel(dirs, lmax, parity, norm, a, b, d, off, smin, out)
 
 
 @njit(inline="always")
@@ -386,17 +385,11 @@ def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
 
 
 @pjit
-def _sh_kernel(dirs, lmax, parity, norm, a, b, d, off, out):
+def _sh_pair_kernel(dirs, lmax, parity, norm, a, b, d, off, smin, out):
     # dirs (n, 3) float64 ~unit vectors; a, b (T,) recurrence tables by column m, d (lmax+1,)
     # sectoral factors, off (lmax+1,) column starts; out (n, size) with size fixed by parity.
-    for i in prange(dirs.shape[0]):
-        _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
-
-
-@pjit
-def _sh_pair_kernel(dirs, lmax, norm, a, b, d, off, smin, out):
-    # All parities (out (n, (lmax+1)^2)), two directions per iteration: the recurrence in l is
-    # a chain of dependent multiplications, and two independent chains keep the FPU busy.
+    # Two directions per iteration: the recurrence in l is a chain of dependent
+    # multiplications, and two independent chains keep the FPU busy.
     # Same operations in the same order as _sh_point, so the same bits; a direction with
     # 0 < sin(theta) < smin needs the carried exponent and takes _sh_point.
     n = dirs.shape[0]
@@ -408,8 +401,8 @@ def _sh_pair_kernel(dirs, lmax, norm, a, b, d, off, smin, out):
         z, s, c1, s1 = _unit(dirs, i)
         zb, sb, c1b, s1b = _unit(dirs, j)
         if (0.0 < s < smin) or (0.0 < sb < smin):
-            _sh_point(dirs, i, lmax, 2, norm, a, b, d, off, out[i])
-            _sh_point(dirs, j, lmax, 2, norm, a, b, d, off, out[j])
+            _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
+            _sh_point(dirs, j, lmax, parity, norm, a, b, d, off, out[j])
             continue
         row = out[i]
         rowb = out[j]
@@ -442,6 +435,30 @@ def _sh_pair_kernel(dirs, lmax, norm, a, b, d, off, smin, out):
                 pmmb *= d[m] * sb
                 fcb = cmb
                 fsb = smb
+            if parity != 2:  # one parity class: positions from _pos, half the values kept
+                _store(row, m, m, pmm, fc, fs, parity)
+                _store(rowb, m, m, pmmb, fcb, fsb, parity)
+                if m == lmax:
+                    continue
+                base = off[m] - m
+                p2 = pmm
+                p1 = a[base + m + 1] * z * pmm
+                p2b = pmmb
+                p1b = a[base + m + 1] * zb * pmmb
+                _store(row, m + 1, m, p1, fc, fs, parity)
+                _store(rowb, m + 1, m, p1b, fcb, fsb, parity)
+                for l in range(m + 2, lmax + 1):
+                    al = a[base + l]
+                    bl = b[base + l]
+                    p = al * z * p1 - bl * p2
+                    pb = al * zb * p1b - bl * p2b
+                    p2 = p1
+                    p1 = p
+                    p2b = p1b
+                    p1b = pb
+                    _store(row, l, m, p, fc, fs, parity)
+                    _store(rowb, l, m, pb, fcb, fsb, parity)
+                continue
             k = m * m + 2 * m  # position of (l, m) = (m, m); (l, -m) is 2m before
             row[k] = pmm * fc
             rowb[k] = pmmb * fcb
