@@ -503,8 +503,16 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
     nxt = folded = 0
     t_last = time.perf_counter()
 
+    def closed(i: int) -> RuntimeError:
+        return RuntimeError(
+            f"simulate: chunk {i} was cancelled on the cluster (the client or the cluster was "
+            "closed during the run, or every worker holding the scattered surface died); "
+            "resume from the checkpoint with a running client")
+
     def submit() -> None:
         nonlocal nxt
+        if client.status != "running":
+            raise closed(nxt)
         while nxt < len(starts) and len(pending) < window and nxt - folded < ahead:
             nd = min(chunk, ndirs - starts[nxt])
             fut = client.submit(_remote_chunk, scene, shared_basis, seed, starts[nxt], nd,
@@ -528,10 +536,7 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
                     "memory: give them more memory or use a smaller chunk, then resume from "
                     "the checkpoint") from None
             except CancelledError:
-                raise RuntimeError(
-                    f"simulate: chunk {i} was cancelled on the cluster (was the client or "
-                    "the cluster closed during the run?); resume from the checkpoint with a "
-                    "running client") from None
+                raise closed(i) from None
             del pending[i]
             workers.add(delta.pop("worker"))
             results[i] = delta
@@ -551,7 +556,7 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
             raise RuntimeError(f"simulate: the cluster returned {folded} of {len(starts)} "
                                "chunks; resume from the checkpoint")
     finally:
-        if pending:
+        if pending and client.status == "running":
             client.cancel(list(pending.values()))
 
 

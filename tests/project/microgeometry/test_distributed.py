@@ -135,6 +135,27 @@ def test_distributed_checkpoint_resumes_locally(client, surface, basis, local, t
     assert_same_bits(res, local)
 
 
+def test_client_closed_mid_run_keeps_the_checkpoint(client, surface, basis, local, tmp_path,
+                                                    monkeypatch):
+    ckpt = tmp_path / "run.ckpt"
+    other = distributed.Client(client.scheduler_info()["address"])
+    real, folds = est_mod._fold, []
+
+    def fold_then_close(acc, delta):
+        real(acc, delta)
+        folds.append(1)
+        if len(folds) == 5:
+            other.close()
+
+    monkeypatch.setattr(est_mod, "_fold", fold_then_close)
+    with pytest.raises(RuntimeError, match="resume from the checkpoint with a running client"):
+        simulate(surface, basis, client=other, checkpoint=ckpt, **RUN)
+    monkeypatch.setattr(est_mod, "_fold", real)
+    assert 5 <= len(folds) < 40
+    res = simulate(surface, basis, resume=ckpt, **RUN)
+    assert_same_bits(res, local)
+
+
 def test_missing_dask_is_a_clear_error(surface, basis, tmp_path, capsys, monkeypatch):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import distributed fails
     with pytest.raises(ImportError, match=r"pip install 'scatmodes\[distributed\]'"):
