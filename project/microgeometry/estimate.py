@@ -300,8 +300,9 @@ def simulate(
     so the sums are the same bits; a task that Dask runs again after its worker died returns
     the same value and is counted once. The checkpoint (written by this process) holds the
     chunks folded so far, and can be resumed with or without a client. A worker process traces
-    one chunk at a time with its share of the host's cores as numba threads, so start workers
-    with one thread each (``LocalCluster(n_workers=N, threads_per_worker=1)``). Workers need
+    one chunk at a time on numba threads that take its share of the host's cores (the cores
+    over the worker processes on that host), so one Dask thread per worker is enough
+    (``LocalCluster(n_workers=N, threads_per_worker=1)``). Workers need
     scatmodes installed and, to avoid compiling the kernels in every process, a writable
     ``NUMBA_CACHE_DIR``.
 

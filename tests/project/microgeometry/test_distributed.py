@@ -20,7 +20,7 @@ distributed = pytest.importorskip("distributed")
 
 from basis import HemiZernike  # noqa: E402
 from compress.cli import commands as cli  # noqa: E402
-from project.microgeometry import GaussianSurface, simulate  # noqa: E402
+from project.microgeometry import GaussianSurface, merge, simulate  # noqa: E402
 from project.microgeometry import estimate as est_mod  # noqa: E402 - to hook its _fold
 
 #: 40 chunks of 50 directions x 8 rays: enough tasks to be in flight when a worker dies
@@ -71,6 +71,10 @@ def test_same_matrix_as_the_local_run(client, surface, basis, local):
     # a different seed gives different bits: the comparison above can fail
     other = simulate(surface, basis, client=client, **dict(RUN, seed=12))
     assert not np.array_equal(other.matrix.matrix, local.matrix.matrix)
+    # merged runs keep every contributing worker; local runs list none
+    assert merge(res, other).meta["workers"] == sorted({*res.meta["workers"],
+                                                        *other.meta["workers"]})
+    assert "workers" not in local.meta
 
 
 class _Scrambled:
