@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis
-from .jit import pjit, prange
+from .jit import pjit, prange, writable
 from .validation import UNIT_ATOL, as_directions, broadcast_batch, check_bytes
 
 __all__ = ["Evaluator"]
@@ -164,8 +164,8 @@ class Evaluator:
     def _iso(self, wi: NDArray, wo: NDArray, out: NDArray, atol: float) -> bool:
         """Run the fused kernel; True if some |w|^2 is further than ``atol`` from 1 (or NaN)."""
         flags = np.zeros((wi.shape[0] + _CHUNK - 1) // _CHUNK, dtype=np.uint8)
-        _iso_kernel(wi, wo, self._coef, self._tri, _FORMS[self.cm.basis.kind], self.fcos,
-                    self.min_cos, atol, flags, out)
+        _iso_kernel(writable(wi), writable(wo), self._coef, self._tri,
+                    _FORMS[self.cm.basis.kind], self.fcos, self.min_cos, atol, flags, out)
         return bool(flags.any())
 
     def _dense_flat(self, wi: NDArray, wo: NDArray, out: NDArray) -> None:

@@ -6,6 +6,7 @@ Public so that ``project`` and ``compress`` (and extensions) share one configura
 from functools import partial
 
 import numba
+import numpy as np
 
 #: Serial kernel: compiled once, cached on disk next to the module.
 njit = partial(numba.njit, cache=True, fastmath=False, nogil=True)
@@ -14,3 +15,13 @@ njit = partial(numba.njit, cache=True, fastmath=False, nogil=True)
 pjit = partial(numba.njit, cache=True, fastmath=False, nogil=True, parallel=True)
 
 prange = numba.prange
+
+
+def writable(a: np.ndarray) -> np.ndarray:
+    """Return ``a``, or a copy if it is read-only, before it goes to a kernel.
+
+    numba compiles (and caches) a separate specialisation of a kernel for read-only arrays,
+    which rule points, broadcast views and frozen inputs are; copying an (n, 3) input is far
+    cheaper than a second compilation on a cold start, and keeps one cache entry per kernel.
+    """
+    return a if a.flags.writeable else a.copy()

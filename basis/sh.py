@@ -11,7 +11,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis, triangular_offsets
-from .jit import njit, pjit, prange
+from .jit import njit, pjit, prange, writable
 from .quadrature import HemisphereRule, hemisphere_rule, sphere_rule
 from .validation import choice
 
@@ -49,8 +49,8 @@ class _Harmonics(Basis):
         return self._order
 
     def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
-        _eval_harmonics(dirs, self._order, _PARITY_CODE[self._parity], self._norm, self._a,
-                        self._b, self._d, self._rows, self._smin, out)
+        _eval_harmonics(writable(dirs), self._order, _PARITY_CODE[self._parity], self._norm,
+                        self._a, self._b, self._d, self._rows, self._smin, out)
 
 
 class SphericalHarmonics(_Harmonics):
@@ -281,8 +281,9 @@ def _pos(l, m, parity):
 
 #: Points per block of the lane kernel: the recurrence runs over a block's points at once.
 _LANES = 8
-#: Blocks per parallel task (scratch arrays are allocated once per task).
-_BLOCKS_PER_TASK = 32
+#: Directions per parallel task (scratch arrays are allocated once per task); even, and a
+#: multiple of _LANES.
+_TASK = 32 * _LANES
 #: Degrees from which the lane kernel beats the per-point kernels (measured on two cores).
 _LANE_LMAX = 24
 #: From this degree on, output rows are touched sequentially before the scattered writes.
@@ -309,13 +310,9 @@ def _seed_floor(lmax: int, norm: float) -> float:
 
 
 def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, out):
-    """Dispatch to the fastest kernel; all of them give bit-identical values."""
+    """Evaluate by the fastest strategy for ``lmax``; all give bit-identical values."""
     off = triangular_offsets(lmax)
-    # two kernels only (each compiles once, on first use): fewer to compile on a cold start
-    if lmax >= _LANE_LMAX:
-        _sh_lane_kernel(dirs, lmax, parity, norm, a, b, d, off, rows[0], rows[1], smin, out)
-    else:
-        _sh_pair_kernel(dirs, lmax, parity, norm, a, b, d, off, smin, out)
+    _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, rows[0], rows[1], smin, out)
 
 
 @njit(inline="always")
@@ -334,7 +331,7 @@ def _unit(dirs, i):
     return z, s, 1.0, 0.0
 
 
-@njit(inline="always")
+@njit
 def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
     # The reference evaluation of one direction, with the carried exponent: every fast kernel
     # falls back to it where a sectoral seed would underflow.
@@ -384,23 +381,22 @@ def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
             _store(row, l, m, p1, fc, fs, parity)
 
 
-@pjit
-def _sh_pair_kernel(dirs, lmax, parity, norm, a, b, d, off, smin, out):
-    # dirs (n, 3) float64 ~unit vectors; a, b (T,) recurrence tables by column m, d (lmax+1,)
-    # sectoral factors, off (lmax+1,) column starts; out (n, size) with size fixed by parity.
-    # Two directions per iteration: the recurrence in l is a chain of dependent
-    # multiplications, and two independent chains keep the FPU busy.
+@njit
+def _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out):
+    # Directions lo..hi-1, two per iteration: the recurrence in l is a chain of dependent
+    # multiplications, and two independent chains keep the FPU busy. Only parity 2 (all
+    # harmonics) has this path; one parity class goes through _sh_point, which keeps the
+    # compiled kernel small (its compilation time grows fast with the code inlined).
     # Same operations in the same order as _sh_point, so the same bits; a direction with
     # 0 < sin(theta) < smin needs the carried exponent and takes _sh_point.
-    n = dirs.shape[0]
     sqrt2 = np.sqrt(2.0)
     p00 = norm / np.sqrt(4.0 * np.pi)
-    for h in prange((n + 1) // 2):
-        i = 2 * h
-        j = min(i + 1, n - 1)  # odd n: the last direction twice, the same values written twice
+    for i in range(lo, hi, 2):
+        j = min(i + 1, hi - 1)  # odd count: the last direction twice, the same values twice
         z, s, c1, s1 = _unit(dirs, i)
         zb, sb, c1b, s1b = _unit(dirs, j)
-        if (0.0 < s < smin) or (0.0 < sb < smin):
+        if parity != 2 or (0.0 < s < smin) or (0.0 < sb < smin):
+            # one parity class (HemiHarmonics), or a seed that needs the carried exponent
             _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
             _sh_point(dirs, j, lmax, parity, norm, a, b, d, off, out[j])
             continue
@@ -435,30 +431,6 @@ def _sh_pair_kernel(dirs, lmax, parity, norm, a, b, d, off, smin, out):
                 pmmb *= d[m] * sb
                 fcb = cmb
                 fsb = smb
-            if parity != 2:  # one parity class: positions from _pos, half the values kept
-                _store(row, m, m, pmm, fc, fs, parity)
-                _store(rowb, m, m, pmmb, fcb, fsb, parity)
-                if m == lmax:
-                    continue
-                base = off[m] - m
-                p2 = pmm
-                p1 = a[base + m + 1] * z * pmm
-                p2b = pmmb
-                p1b = a[base + m + 1] * zb * pmmb
-                _store(row, m + 1, m, p1, fc, fs, parity)
-                _store(rowb, m + 1, m, p1b, fcb, fsb, parity)
-                for l in range(m + 2, lmax + 1):
-                    al = a[base + l]
-                    bl = b[base + l]
-                    p = al * z * p1 - bl * p2
-                    pb = al * zb * p1b - bl * p2b
-                    p2 = p1
-                    p1 = p
-                    p2b = p1b
-                    p1b = pb
-                    _store(row, l, m, p, fc, fs, parity)
-                    _store(rowb, l, m, pb, fcb, fsb, parity)
-                continue
             k = m * m + 2 * m  # position of (l, m) = (m, m); (l, -m) is 2m before
             row[k] = pmm * fc
             rowb[k] = pmmb * fcb
@@ -508,81 +480,98 @@ def _sh_pair_kernel(dirs, lmax, parity, norm, a, b, d, off, smin, out):
                     rowb[k - 2 * m] = pb * fsb
 
 
-@pjit
-def _sh_lane_kernel(dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, out):
-    # Blocks of _LANES directions run the recurrence together, row l by row l: the innermost
-    # loops go over the lanes with a fixed trip count, so they vectorise, and the chains of
-    # different lanes overlap. ra, rb: a, b by row (_row_tables). A block with a direction
-    # needing the carried exponent (0 < sin(theta) < smin), and the last partial block, take
-    # _sh_point; the others give its bits (same operations in the same order).
-    n = dirs.shape[0]
-    nfull = n // _LANES
-    ntask = (nfull + _BLOCKS_PER_TASK - 1) // _BLOCKS_PER_TASK
+@njit
+def _sh_blocks(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, rows, cc, ss,
+               seed, zz, out):
+    # Directions lo..hi-1 in blocks of _LANES that run the recurrence together, row l by row
+    # l: the innermost loops go over the lanes with a fixed trip count, so they vectorise, and
+    # the chains of different lanes overlap. ra, rb: a, b by row (_row_tables); rows, cc, ss,
+    # seed, zz: scratch. A block with a direction needing the carried exponent
+    # (0 < sin(theta) < smin), and a last partial block, take _sh_point; the others give its
+    # bits (same operations in the same order).
     sqrt2 = np.sqrt(2.0)
     p00 = norm / np.sqrt(4.0 * np.pi)
-    for i in range(nfull * _LANES, n):  # the partial block (few directions)
+    nfull = (hi - lo) // _LANES
+    for i in range(lo + nfull * _LANES, hi):
         _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
-    for task in prange(ntask):
-        rows = np.empty((3, lmax + 1, _LANES))
-        cc = np.empty((lmax + 1, _LANES))
-        ss = np.empty((lmax + 1, _LANES))
-        seed = np.empty((lmax + 1, _LANES))
-        zz = np.empty(_LANES)
-        for blk in range(task * _BLOCKS_PER_TASK, min(nfull, (task + 1) * _BLOCKS_PER_TASK)):
-            i0 = blk * _LANES
-            slow = False
+    for blk in range(nfull):
+        i0 = lo + blk * _LANES
+        slow = False
+        for j in range(_LANES):
+            z, s, c1, s1 = _unit(dirs, i0 + j)
+            slow |= 0.0 < s < smin
+            zz[j] = z
+            cm = sqrt2
+            sm = 0.0
+            pmm = p00
+            cc[0, j] = 1.0
+            ss[0, j] = 0.0
+            seed[0, j] = pmm
+            for m in range(1, lmax + 1):
+                t = cm * c1 - sm * s1
+                sm = sm * c1 + cm * s1
+                cm = t
+                cc[m, j] = cm
+                ss[m, j] = sm
+                pmm *= d[m] * s
+                seed[m, j] = pmm
+        if slow:
             for j in range(_LANES):
-                z, s, c1, s1 = _unit(dirs, i0 + j)
-                slow |= 0.0 < s < smin
-                zz[j] = z
-                cm = sqrt2
-                sm = 0.0
-                pmm = p00
-                cc[0, j] = 1.0
-                ss[0, j] = 0.0
-                seed[0, j] = pmm
-                for m in range(1, lmax + 1):
-                    t = cm * c1 - sm * s1
-                    sm = sm * c1 + cm * s1
-                    cm = t
-                    cc[m, j] = cm
-                    ss[m, j] = sm
-                    pmm *= d[m] * s
-                    seed[m, j] = pmm
-            if slow:
-                for j in range(_LANES):
-                    _sh_point(dirs, i0 + j, lmax, parity, norm, a, b, d, off, out[i0 + j])
-                continue
-            for l in range(lmax + 1):
-                o = (l * (l + 1)) // 2
-                p = rows[l % 3]
-                p1 = rows[(l + 2) % 3]
-                p2 = rows[(l + 1) % 3]
-                for m in range(l + 1):
-                    if m < l - 1:
-                        am = ra[o + m]
-                        bm = rb[o + m]
-                        for j in range(_LANES):
-                            p[m, j] = am * zz[j] * p1[m, j] - bm * p2[m, j]
-                    elif m == l - 1:
-                        am = ra[o + m]
-                        for j in range(_LANES):
-                            p[m, j] = am * zz[j] * p1[m, j]
-                    else:
-                        for j in range(_LANES):
-                            p[m, j] = seed[m, j]
-                    if parity != 2 and (l + m) % 2 != parity:
-                        continue
-                    kc = _pos(l, m, parity)
-                    if m == 0:
-                        for j in range(_LANES):
-                            out[i0 + j, kc] = p[0, j]
-                    else:
-                        ks = _pos(l, -m, parity)
-                        for j in range(_LANES):
-                            out[i0 + j, kc] = p[m, j] * cc[m, j]
-                        for j in range(_LANES):
-                            out[i0 + j, ks] = p[m, j] * ss[m, j]
+                _sh_point(dirs, i0 + j, lmax, parity, norm, a, b, d, off, out[i0 + j])
+            continue
+        for l in range(lmax + 1):
+            o = (l * (l + 1)) // 2
+            p = rows[l % 3]
+            p1 = rows[(l + 2) % 3]
+            p2 = rows[(l + 1) % 3]
+            for m in range(l + 1):
+                if m < l - 1:
+                    am = ra[o + m]
+                    bm = rb[o + m]
+                    for j in range(_LANES):
+                        p[m, j] = am * zz[j] * p1[m, j] - bm * p2[m, j]
+                elif m == l - 1:
+                    am = ra[o + m]
+                    for j in range(_LANES):
+                        p[m, j] = am * zz[j] * p1[m, j]
+                else:
+                    for j in range(_LANES):
+                        p[m, j] = seed[m, j]
+                if parity != 2 and (l + m) % 2 != parity:
+                    continue
+                kc = _pos(l, m, parity)
+                if m == 0:
+                    for j in range(_LANES):
+                        out[i0 + j, kc] = p[0, j]
+                else:
+                    ks = _pos(l, -m, parity)
+                    for j in range(_LANES):
+                        out[i0 + j, kc] = p[m, j] * cc[m, j]
+                    for j in range(_LANES):
+                        out[i0 + j, ks] = p[m, j] * ss[m, j]
+
+
+@pjit
+def _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, out):
+    # dirs (n, 3) float64 ~unit vectors; a, b (T,) recurrence tables by column m, ra, rb the
+    # same by row l, d (lmax+1,) sectoral factors, off (lmax+1,) column starts; out (n, size)
+    # with size fixed by parity. One parallel kernel for both strategies, so a cold start
+    # compiles it once whatever the degrees used.
+    n = dirs.shape[0]
+    lanes = lmax >= _LANE_LMAX
+    for task in prange((n + _TASK - 1) // _TASK):
+        lo = task * _TASK
+        hi = min(n, lo + _TASK)
+        if lanes:
+            rows = np.empty((3, lmax + 1, _LANES))
+            cc = np.empty((lmax + 1, _LANES))
+            ss = np.empty((lmax + 1, _LANES))
+            seed = np.empty((lmax + 1, _LANES))
+            zz = np.empty(_LANES)
+            _sh_blocks(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, rows, cc,
+                       ss, seed, zz, out)
+        else:
+            _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out)
 
 
 @njit(inline="always")

@@ -12,7 +12,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis
-from .jit import njit, pjit, prange
+from .jit import njit, pjit, prange, writable
 from .quadrature import HemisphereRule, hemisphere_rule
 from .validation import nonneg_int
 
@@ -78,7 +78,7 @@ class HemiZernike(Basis):
         self._norm = np.sqrt((np.arange(self._order + 1) + 1.0) / np.pi)
 
     def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
-        _zernike_kernel(dirs, self._order, self._coef, self._norm, out)
+        _zernike_kernel(writable(dirs), self._order, self._coef, self._norm, out)
 
     def exact_rule(self) -> HemisphereRule:
         """Return a product rule exact for every product of two functions of this basis.
