@@ -160,8 +160,16 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
         result are measured (0: skip); ``seed`` seeds them.
     seed : int
     **project_kwargs
-        Passed to :func:`project.project` for the residual (``quantity``, ``tol``, ...);
-        the quantity defaults to :func:`project.default_quantity` of the basis.
+        Passed to :func:`project.project` for the residual (``quantity``, ``tol``, ...).
+        The quantity defaults to ``"f_cos"``: the residual's expansion is then the
+        orthogonal projection of q - q_lobe in the L2 norm of q = f cos cos, the norm of the
+        ``l2`` error, so the hybrid is never worse than its lobe alone in that norm (up to
+        the quadrature error). With ``quantity="f"`` it can be: on a GGX Cook-Torrance
+        (alpha 0.15, glass Fresnel, RGB kd) with a rank-1 factored lobe (l2 0.058), an f
+        residual gave 0.065 / 0.086 / 0.071 at orders 2 / 4 / 8, an f_cos one 0.058 at
+        order 2. ``"f"`` is the better choice for pointwise errors near grazing, where an
+        f_cos expansion evaluated as f divides by the cosines (the ``log`` error of the
+        same example: 0.0059 with f, 0.0102 with f_cos).
 
     Returns
     -------
@@ -182,6 +190,7 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
     elif lobe_options:
         raise ValueError("lobe_options apply only when the lobe is fitted here (lobe given "
                          "as a family name)")
+    project_kwargs.setdefault("quantity", "f_cos")
     res = project.project(_Residual(brdf, lobe), b, **project_kwargs)
     info = {"source": repr(brdf), "order": order, "kind": kind,
             "residual_truncation_error": res.info.get("truncation_error"),

@@ -38,7 +38,7 @@ def test_lobe_only_brdf_has_zero_residual(rng):
 def test_lambert_residual_is_one_coefficient(rng):
     # f = lobe + a / pi; the residual a / pi = 2a K_0^0 K_0^0 in Zernike as quantity "f"
     lobe = Phong(0.0, 0.5, 30.0)
-    h = hybrid(_Sum(lobe, Lambert(0.3)), 6, lobe=lobe, tol=1e-10)
+    h = hybrid(_Sum(lobe, Lambert(0.3)), 6, lobe=lobe, tol=1e-10, quantity="f")
     m = h.residual.matrix
     assert h.residual.quantity == "f"
     assert m[0, 0] == pytest.approx(0.6, rel=1e-12)
@@ -46,6 +46,23 @@ def test_lambert_residual_is_one_coefficient(rng):
     wi, wo = random_directions(rng, 300, upper=True), random_directions(rng, 300, upper=True)
     np.testing.assert_allclose(h.eval(wi, wo), lobe.eval(wi, wo) + 0.3 / np.pi, rtol=1e-11)
     assert h.info["l2"] < 1e-11  # peak-resolving estimate of an exact representation
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of")
+def test_residual_never_worsens_the_lobe():
+    """The default f_cos residual is the L2(q) projection of q - q_lobe: at every order the
+    hybrid's l2 error is at most the lobe's (on the same pairs, up to quadrature error),
+    and it falls with the order when the lobe misses a broad part (here the Lambert term
+    of the BRDF, which the lobe lacks)."""
+    from project.sampling import brdf_errors, peak_resolving_pairs
+
+    lobe = CookTorrance(0.0, 0.3, distribution="ggx", ior=1.5)
+    brdf = _Sum(CookTorrance(0.0, 0.25, distribution="ggx", ior=1.5), Lambert(0.3))
+    pairs = peak_resolving_pairs(1 << 14, seed=5)
+    alone = brdf_errors(brdf, lobe, pairs)["l2"]
+    errs = [brdf_errors(brdf, hybrid(brdf, n, lobe=lobe, error_samples=0), pairs)["l2"]
+            for n in (0, 2, 6)]
+    assert errs[0] < alone and errs[2] < errs[1] < errs[0]
 
 
 @pytest.mark.filterwarnings("ignore:the expansion of")  # the residual is a sharp difference
