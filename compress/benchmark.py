@@ -86,7 +86,7 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
                    tols: Sequence[float] = (0.05, 0.10), workers: int = 2,
                    materials: Iterable[str] | None = None,
                    candidates: Sequence[dict] | None = None, error_n: int = 1 << 16,
-                   progress: bool = False) -> list[dict[str, Any]]:
+                   progress: bool = False, client: Any = None) -> list[dict[str, Any]]:
     """Run :func:`compress.select` on every MERL file of ``folder`` and chart the result.
 
     Parameters
@@ -109,6 +109,10 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
         Pairs of the error estimate of :func:`compress.select`.
     progress : bool
         Show a progress bar (tqdm).
+    client : dask.distributed.Client, optional
+        Run the materials as tasks on this Dask cluster instead (one task per material;
+        ``workers`` is then ignored). The workers must see ``folder`` and ``out`` (a shared
+        file system) and have scatmodes installed.
 
     Returns
     -------
@@ -143,7 +147,20 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
                error_n=error_n)
     bar = _bar(len(names), len(names) - len(todo), progress)
     failed: dict[str, str] = {}  # a material that fails is reported; the others go on
-    if workers <= 1 or len(todo) <= 1:
+    if client is not None:
+        _check_client(client)
+        from distributed import as_completed as dask_completed
+
+        futures = {client.submit(_run_one, str(folder / f"{n}.binary"), str(out), job,
+                                 pure=False, key=f"scatmodes-benchmark-{n}"): n
+                   for n in todo}
+        for fut in dask_completed(futures):
+            try:
+                fut.result()
+            except (ValueError, OSError, RuntimeError, MemoryError) as e:
+                failed[futures[fut]] = f"{type(e).__name__}: {e}"
+            bar.update(1)
+    elif workers <= 1 or len(todo) <= 1:
         for n in todo:
             try:
                 _run_one(str(folder / f"{n}.binary"), str(out), job)
@@ -183,6 +200,17 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
                            f"(the tables in {str(out)!r} hold the others; run again to retry "
                            f"them): {first[0]}: {first[1]}")
     return rows
+
+
+def _check_client(client: Any) -> None:
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ImportError("benchmark_merl(client=...) needs dask.distributed, which is not "
+                          "installed: pip install 'scatmodes[distributed]'") from None
+    if not isinstance(client, Client):
+        raise TypeError(f"client must be a dask.distributed.Client, got "
+                        f"{type(client).__name__}")
 
 
 #: Thread counts of BLAS (OpenMP, OpenBLAS, MKL) and numba, set for the worker processes.

@@ -7,17 +7,20 @@ import functools
 import json
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 __all__ = ["add_parser"]
 
 
 def add_parser(sub: argparse._SubParsersAction, fmt: type,
                add_progress: Callable[[argparse.ArgumentParser], None],
-               wants_progress: Callable[[argparse.Namespace], bool]) -> None:
+               wants_progress: Callable[[argparse.Namespace], bool],
+               dask_client: Callable[[argparse.Namespace], Any]) -> None:
     """Register ``benchmark`` (with its one target, ``merl``) on the subcommand parser.
 
     ``add_progress`` adds the command line's ``--progress`` flag, ``wants_progress`` reads
-    it (the conventions of :mod:`compress.cli.commands`, which calls this).
+    it, ``dask_client`` opens the Dask client of ``--scheduler`` (the conventions of
+    :mod:`compress.cli.commands`, which calls this).
     """
     b = sub.add_parser(
         "benchmark", formatter_class=fmt,
@@ -37,17 +40,22 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type,
     b.add_argument("--tols", default="0.05,0.10",
                    help="comma-separated l2 tolerances (default %(default)s)")
     b.add_argument("--workers", type=int, default=2,
-                   help="worker processes, one material each (default %(default)s)")
+                   help="local worker processes, one material each (default %(default)s)")
+    b.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="run the materials as tasks on the running Dask cluster of this "
+                        "scheduler instead, e.g. tcp://host:8786 (needs "
+                        "scatmodes[distributed] and DIR, OUT on a shared file system)")
     b.add_argument("--materials", default=None,
                    help="comma-separated material names (default: every file in DIR)")
     b.add_argument("--error-pairs", type=int, default=1 << 16,
                    help="pairs of the peak-resolving error estimate (default %(default)s)")
     add_progress(b)
-    b.set_defaults(func=functools.partial(run, wants_progress=wants_progress))
+    b.set_defaults(func=functools.partial(run, wants_progress=wants_progress,
+                                          dask_client=dask_client))
 
 
-def run(args: argparse.Namespace, *,
-        wants_progress: Callable[[argparse.Namespace], bool]) -> int:
+def run(args: argparse.Namespace, *, wants_progress: Callable[[argparse.Namespace], bool],
+        dask_client: Callable[[argparse.Namespace], Any]) -> int:
     """Run the benchmark and print the summary."""
     from ..benchmark import benchmark_merl
 
@@ -59,8 +67,11 @@ def run(args: argparse.Namespace, *,
         raise ValueError(f"--workers must be >= 1, got {args.workers}")
     names = None if args.materials is None else \
         [n.strip() for n in args.materials.split(",") if n.strip()]
-    benchmark_merl(args.folder, args.out, tols=tols, workers=args.workers, materials=names,
-                   error_n=args.error_pairs, progress=wants_progress(args))
+    # --workers counts local processes here (no Dask needed); --scheduler alone uses Dask
+    with dask_client(argparse.Namespace(workers=None, scheduler=args.scheduler)) as client:
+        benchmark_merl(args.folder, args.out, tols=tols, workers=args.workers,
+                       materials=names, error_n=args.error_pairs,
+                       progress=wants_progress(args), client=client)
     summary = json.loads((Path(args.out) / "summary.json").read_text())
     print(json.dumps(summary, indent=2))
     print(f"wrote {Path(args.out) / 'materials.csv'}, candidates.csv, pareto.png, "

@@ -829,7 +829,7 @@ def _parser() -> argparse.ArgumentParser:
 
     from .benchmark import add_parser as add_benchmark
 
-    add_benchmark(sub, fmt, _add_progress, _progress)
+    add_benchmark(sub, fmt, _add_progress, _progress, _dask_client)
 
     i = sub.add_parser("info", formatter_class=fmt,
                        help="versions, threads, limits, models; or what FILE holds",

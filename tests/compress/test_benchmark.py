@@ -105,3 +105,29 @@ def test_command_line(folder, tmp_path, capsys):
     assert main(["benchmark", "merl", str(tmp_path / "none"), "--out", str(out)]) == 2
     assert "no folder of MERL files" in capsys.readouterr().err
     assert np.isfinite(rec["row"]["image_0.05"])
+
+
+def test_dask_client_gives_the_local_result(folder, tmp_path):
+    """One task per material on a Dask cluster: the same tables as the local run (select
+    is deterministic: seeded fits and error pairs), timings aside."""
+    distributed = pytest.importorskip("distributed")
+    local = benchmark_merl(folder, tmp_path / "local", workers=1, candidates=CANDS,
+                           error_n=4096)
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=1,
+                            dashboard_address=None) as client:
+        remote = benchmark_merl(folder, tmp_path / "dask", candidates=CANDS, error_n=4096,
+                                client=client)
+
+    def strip(rows):
+        return [{k: v for k, v in r.items() if k != "select_seconds"} for r in rows]
+
+    assert strip(remote) == strip(local)
+    with pytest.raises(TypeError, match="dask.distributed.Client"):
+        benchmark_merl(folder, tmp_path / "x", candidates=CANDS, client="tcp://nowhere:1")
+
+
+def test_command_line_bad_scheduler(folder, tmp_path, capsys):
+    pytest.importorskip("distributed")
+    assert main(["benchmark", "merl", str(folder), "--out", str(tmp_path / "o"),
+                 "--scheduler", "tcp://127.0.0.1:9"]) == 2
+    assert "--scheduler 'tcp://127.0.0.1:9': cannot connect" in capsys.readouterr().err
