@@ -1094,7 +1094,8 @@ def fit_stability(cases: Sequence[tuple[str, int | None]] = FIT_CASES, *,
 
 
 # -- everything ---------------------------------------------------------------------------------
-def write_all(out_dir: str | Path, small: bool = False) -> dict[str, tuple[Path, Path]]:
+def write_all(out_dir: str | Path, small: bool = False, *,
+              client: Any = None) -> dict[str, tuple[Path, Path]]:
     """Run the six measurements and write ``<name>.md`` and ``<name>.png`` for each.
 
     Parameters
@@ -1103,6 +1104,9 @@ def write_all(out_dir: str | Path, small: bool = False) -> dict[str, tuple[Path,
         An existing directory.
     small : bool
         Small sizes (seconds each, as the tests and notebook use) instead of the full atlas.
+    client : dask.distributed.Client, optional
+        Run the six measurements as tasks on this Dask cluster (``pip install
+        'scatmodes[distributed]'``); the files are written here, by the caller.
 
     Returns
     -------
@@ -1137,9 +1141,22 @@ def write_all(out_dir: str | Path, small: bool = False) -> dict[str, tuple[Path,
                                                resolution_rays=256000),
             "fit_stability": fit_stability,
         }
+    if client is not None:
+        try:
+            from distributed import Client
+        except ImportError:
+            raise ImportError("write_all(client=...) needs dask.distributed, which is not "
+                              "installed: pip install 'scatmodes[distributed]'") from None
+        if not isinstance(client, Client):
+            raise TypeError(f"client must be a dask.distributed.Client, got "
+                            f"{type(client).__name__}")
+        futures = {name: client.submit(job, pure=False, key=f"scatmodes-stability-{name}")
+                   for name, job in jobs.items()}
+        results = ((name, fut.result()) for name, fut in futures.items())
+    else:
+        results = ((name, job()) for name, job in jobs.items())  # each written when done
     written = {}
-    for name, job in jobs.items():
-        atlas = job()
+    for name, atlas in results:
         md = out / f"{name}.md"
         with atomic_path(md) as tmp:
             tmp.write_text(atlas.to_markdown())

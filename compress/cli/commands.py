@@ -549,6 +549,9 @@ def _study(args: argparse.Namespace) -> int:
     if args.small:
         raise UserError("--small applies to --stability (the reduced stability atlas); a BRDF "
                         "study takes a MODEL or --merl, with --orders and --kinds for its size")
+    if args.workers is not None or args.scheduler is not None:
+        raise UserError("--workers and --scheduler apply to --stability (a BRDF study runs "
+                        "in this process)")
     if args.metric not in METRICS:
         raise UserError(f"--metric must be one of {', '.join(METRICS)}, got {args.metric!r}")
     kinds = _kinds(args.kinds)
@@ -589,8 +592,9 @@ def _stability(args: argparse.Namespace) -> int:
     out = _output_dir(args.out)
     print(f"writing the stability atlas to {out} ({'small' if args.small else 'full'} size; "
           "the full size takes several minutes)")
-    for md, png in write_all(out, small=args.small).values():
-        print(f"wrote {md} and {png}")
+    with _dask_client(args) as client:
+        for md, png in write_all(out, small=args.small, client=client).values():
+            print(f"wrote {md} and {png}")
     return 0
 
 
@@ -824,6 +828,13 @@ def _parser() -> argparse.ArgumentParser:
                          "(compress.stability: where each method breaks) to DIR")
     st.add_argument("--small", action="store_true",
                     help="with --stability: reduced sizes (about half a minute)")
+    dask = st.add_mutually_exclusive_group()
+    dask.add_argument("--workers", type=_count, default=None, metavar="N",
+                      help="with --stability: run its measurements as tasks on a local Dask "
+                           "cluster of N worker processes (needs scatmodes[distributed])")
+    dask.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                      help="with --stability: run them on the running Dask cluster of this "
+                           "scheduler, e.g. tcp://host:8786")
     _add_progress(st)
     st.set_defaults(func=_study)
 

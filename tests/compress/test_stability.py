@@ -167,3 +167,20 @@ def test_fit_stability():
     assert a.facts["at_best@lambert+ggx"] == 1.0 and a.facts["at_best@rr8807"] == 1.0
     assert a.facts["spread@rr8807"] < 1e-6
     assert "restarts at the best" in a.to_markdown()
+
+
+def test_write_all_on_a_dask_cluster(tmp_path):
+    """The six measurements as tasks (an in-process cluster): the same tables as when
+    they are computed here (hemisphere_conditioning is deterministic)."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=1,
+                            dashboard_address=None) as client:
+        written = st.write_all(tmp_path, small=True, client=client)
+    assert sorted(written) == sorted(["radial_accuracy", "hemisphere_conditioning",
+                                      "sparse_fits", "sharp_lobes", "monte_carlo",
+                                      "fit_stability"])
+    md, png = written["hemisphere_conditioning"]
+    assert md.read_text() == st.hemisphere_conditioning((2, 4, 6)).to_markdown()
+    assert png.stat().st_size > 0
+    with pytest.raises(TypeError, match="dask.distributed.Client"):
+        st.write_all(tmp_path, small=True, client=object())

@@ -559,3 +559,14 @@ def test_simulate_signal_saves_a_final_checkpoint(tmp_path, sig, code, word):
     with h5py.File(ckpt, "r") as f:
         # the flag is written inside the third chunk of 4096 directions x 8 rays
         assert f["rays"][()] >= 2 * 32768 and f["rays"][()] % 32768 == 0
+
+
+def test_study_dask_options(tmp_path, capsys):
+    """--workers/--scheduler are for the stability atlas; a bad scheduler is one line."""
+    line = one_line_error(capsys, "study", "Lambert", "--workers", "2", "--out",
+                          str(tmp_path / "s"))
+    assert "--workers and --scheduler apply to --stability" in line
+    pytest.importorskip("distributed")
+    line = one_line_error(capsys, "study", "--stability", "--small", "--scheduler",
+                          "tcp://127.0.0.1:9", "--out", str(tmp_path / "t"))
+    assert "cannot connect" in line
