@@ -157,8 +157,9 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
         Rounded to its storage type (held as float64). ``info`` gains ``"selected"`` (its
         row of the table), ``"bytes"``, ``"dtype"`` and ``"candidates"``: one dict per
         candidate and storage type with ``label``, ``form``, ``candidate`` (its dict, to
-        pass again as ``candidates=[...]``), ``family`` (the model family, or the basis
-        kind of a modal candidate), ``dtype``, ``bytes``, ``l2``,
+        pass again as ``candidates=[...]``), ``family`` (the model family, the basis
+        kind of a modal candidate, ``"<family> + <kind>"`` for a hybrid), ``dtype``,
+        ``bytes``, ``l2``,
         ``log``, ``l2_stderr``, ``scene`` (with ``scene=``), ``error`` (what decides),
         ``meets``, ``seconds`` (to build) and ``status`` (``"measured"``,
         ``"skipped: ..."`` or ``"failed: ..."``).
@@ -416,8 +417,11 @@ def _rounded(rep: Any, dtype: str, spec: dict[str, Any]) -> tuple[Any, int]:
 
 
 def _row(b: _Build, dtype: str, **values: Any) -> dict[str, Any]:
-    row = {"label": b.label, "form": b.spec["form"], "candidate": dict(b.spec),
-           "family": b.spec.get("family") or b.spec["kind"], "dtype": dtype,
+    spec = b.spec
+    family = {"model": spec.get("family"), "modal": spec.get("kind"),
+              "hybrid": f"{spec.get('family')} + {spec.get('kind')}"}[spec["form"]]
+    row = {"label": b.label, "form": spec["form"], "candidate": dict(spec),
+           "family": family, "dtype": dtype,
            "bytes": b.bytes(dtype),
            "l2": math.nan, "log": math.nan, "l2_stderr": math.nan, "error": math.nan,
            "meets": False, "seconds": math.nan}
