@@ -422,6 +422,8 @@ HDF5_SUFFIXES = (".h5", ".hdf5", ".hdf", ".he5")
 
 def _hdf5_output(path: str, name: str = "-o") -> Path:
     """Check that ``path`` names an HDF5 file by its suffix, then that it can be written."""
+    if Path(path).is_dir():
+        return _output_file(path, name)  # says that a directory is not a file
     suffix = Path(path).suffix
     if suffix.lower() not in HDF5_SUFFIXES:
         raise UserError(f"{name} {path!r} must end in {', '.join(HDF5_SUFFIXES)}: the command "

@@ -361,7 +361,10 @@ class _Sum:
 @pytest.mark.parametrize("make", [_ggx, _lafortune])
 def test_hybrid_round_trip_bit_exact(tmp_path, rng, make):
     lobe = make()
-    h = hybrid(_Sum(lobe, Lambert([0.3, 0.2, 0.1])), 4, lobe=lobe, error_samples=0)
+    # quantity f: float32 rounding of an f_cos residual is amplified by 1/(cos cos) at
+    # grazing, which is not what this test is about
+    h = hybrid(_Sum(lobe, Lambert([0.3, 0.2, 0.1])), 4, lobe=lobe, error_samples=0,
+               quantity="f")
     h.info["note"] = np.arange(4.0)
     back = load(save(h, tmp_path / "h.h5"))
     assert isinstance(back, Hybrid) and isinstance(back.lobe, FittedModel)

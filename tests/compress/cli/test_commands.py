@@ -391,7 +391,8 @@ def test_study_stability_writes_the_atlas(tmp_path, capsys, monkeypatch):
 
     calls = []
 
-    def fake_write_all(out, small=False):  # the atlas itself is tested in test_stability
+    def fake_write_all(out, small=False, client=None):  # the atlas: test_stability
+        assert client is None  # neither --workers nor --scheduler
         calls.append((out, small))
         return {"radial_accuracy": (out / "radial_accuracy.md", out / "radial_accuracy.png")}
 
