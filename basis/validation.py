@@ -55,6 +55,26 @@ def check_bytes(nbytes: float, what: str) -> None:
         )
 
 
+def dask_client(client: object, caller: str) -> None:
+    """Check that ``client`` is a running ``dask.distributed.Client``.
+
+    ``caller`` (e.g. ``"simulate"``) names the function in the messages. Raises
+    ImportError with the install command when dask.distributed is missing, TypeError for
+    another object and ValueError for a closed client.
+    """
+    try:
+        from distributed import Client
+    except ImportError:
+        raise ImportError(f"{caller}(client=...) needs dask.distributed, which is not "
+                          "installed: pip install 'scatmodes[distributed]'") from None
+    if not isinstance(client, Client):
+        raise TypeError(f"client must be a dask.distributed.Client, got "
+                        f"{type(client).__name__}")
+    if client.status != "running":
+        raise ValueError(f"client must be connected to a running cluster, its status is "
+                         f"{client.status!r}: create a new Client")
+
+
 def as_directions(
     dirs: ArrayLike, name: str = "dirs", *, upper: bool = False
 ) -> NDArray[np.float64]:

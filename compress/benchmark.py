@@ -25,12 +25,13 @@ from __future__ import annotations
 
 import contextlib
 import csv
+import functools
 import json
 import math
 import multiprocessing
 import os
 import time
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -38,6 +39,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from basis.validation import dask_client
 from project.io import atomic_path
 
 from .render import render_sphere
@@ -143,43 +145,41 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
         names = wanted
     if not names:
         raise FileNotFoundError(f"no .binary files in {str(folder)!r}")
+    if client is not None:
+        dask_client(client, "benchmark_merl")
     (out / "materials").mkdir(parents=True, exist_ok=True)
     todo = [n for n in names if not (out / "materials" / f"{n}.json").is_file()]
     job = dict(tols=tols, candidates=None if candidates is None else list(candidates),
                error_n=error_n)
     bar = _bar(len(names), len(names) - len(todo), progress)
     failed: dict[str, str] = {}  # a material that fails is reported; the others go on
+
+    def settle(name: str, result: Callable[[], None]) -> None:
+        try:
+            result()
+        except (ValueError, OSError, RuntimeError, MemoryError) as e:
+            failed[name] = f"{type(e).__name__}: {e}"
+        bar.update(1)
+
+    def path(name: str) -> str:
+        return str(folder / f"{name}.binary")
+
     if client is not None:
-        _check_client(client)
         from distributed import as_completed as dask_completed
 
-        futures = {client.submit(_run_one, str(folder / f"{n}.binary"), str(out), job,
-                                 pure=False, key=f"scatmodes-benchmark-{n}"): n
-                   for n in todo}
+        futures = {client.submit(_run_one, path(n), str(out), job, pure=False,
+                                 key=f"scatmodes-benchmark-{n}"): n for n in todo}
         for fut in dask_completed(futures):
-            try:
-                fut.result()
-            except (ValueError, OSError, RuntimeError, MemoryError) as e:
-                failed[futures[fut]] = f"{type(e).__name__}: {e}"
-            bar.update(1)
+            settle(futures[fut], fut.result)
     elif workers <= 1 or len(todo) <= 1:
         for n in todo:
-            try:
-                _run_one(str(folder / f"{n}.binary"), str(out), job)
-            except (ValueError, OSError, RuntimeError, MemoryError) as e:
-                failed[n] = f"{type(e).__name__}: {e}"
-            bar.update(1)
+            settle(n, functools.partial(_run_one, path(n), str(out), job))
     else:
         with _threads_per_worker(workers), ProcessPoolExecutor(
                 max_workers=workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(_run_one, str(folder / f"{n}.binary"), str(out), job): n
-                       for n in todo}
+            futures = {pool.submit(_run_one, path(n), str(out), job): n for n in todo}
             for fut in as_completed(futures):
-                try:
-                    fut.result()
-                except (ValueError, OSError, RuntimeError, MemoryError) as e:
-                    failed[futures[fut]] = f"{type(e).__name__}: {e}"
-                bar.update(1)
+                settle(futures[fut], fut.result)
     bar.close()
     rows, cands = [], []
     names = [n for n in names if n not in failed]
@@ -202,17 +202,6 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
                            f"(the tables in {str(out)!r} hold the others; run again to retry "
                            f"them): {first[0]}: {first[1]}")
     return rows
-
-
-def _check_client(client: Any) -> None:
-    try:
-        from distributed import Client
-    except ImportError:
-        raise ImportError("benchmark_merl(client=...) needs dask.distributed, which is not "
-                          "installed: pip install 'scatmodes[distributed]'") from None
-    if not isinstance(client, Client):
-        raise TypeError(f"client must be a dask.distributed.Client, got "
-                        f"{type(client).__name__}")
 
 
 #: Thread counts of BLAS (OpenMP, OpenBLAS, MKL) and numba, set for the worker processes.

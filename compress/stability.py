@@ -42,7 +42,7 @@ from numpy.typing import NDArray
 
 import basis
 import project
-from basis.validation import nonneg_int
+from basis.validation import dask_client, nonneg_int
 from project.io import atomic_path
 
 from .evaluate import evaluate
@@ -1142,14 +1142,7 @@ def write_all(out_dir: str | Path, small: bool = False, *,
             "fit_stability": fit_stability,
         }
     if client is not None:
-        try:
-            from distributed import Client
-        except ImportError:
-            raise ImportError("write_all(client=...) needs dask.distributed, which is not "
-                              "installed: pip install 'scatmodes[distributed]'") from None
-        if not isinstance(client, Client):
-            raise TypeError(f"client must be a dask.distributed.Client, got "
-                            f"{type(client).__name__}")
+        dask_client(client, "write_all")
         futures = {name: client.submit(job, pure=False, key=f"scatmodes-stability-{name}")
                    for name, job in jobs.items()}
         results = ((name, fut.result()) for name, fut in futures.items())

@@ -630,6 +630,15 @@ def _add_source(p: argparse.ArgumentParser) -> None:
                         "models, 1e-3 for MERL tables, which converge slowly)")
 
 
+def _add_dask(p: argparse.ArgumentParser, workers: str, scheduler: str) -> None:
+    """Add the exclusive --workers N / --scheduler ADDRESS (read by _dask_client)."""
+    dask = p.add_mutually_exclusive_group()
+    dask.add_argument("--workers", type=_count, default=None, metavar="N",
+                      help=f"{workers} (needs scatmodes[distributed])")
+    dask.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                      help=f"{scheduler}, e.g. tcp://host:8786 (needs scatmodes[distributed])")
+
+
 def _add_progress(p: argparse.ArgumentParser) -> None:
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show progress bars (default: when stderr is a terminal)")
@@ -789,13 +798,8 @@ def _parser() -> argparse.ArgumentParser:
                    help="seconds between checkpoints (default 60): at most this much work is "
                         "lost if the machine fails")
     s.add_argument("--resume", metavar="PATH", help="continue from this checkpoint")
-    dask = s.add_mutually_exclusive_group()
-    dask.add_argument("--workers", type=_count, default=None, metavar="N",
-                      help="trace on a local Dask cluster of N worker processes (needs "
-                           "scatmodes[distributed]; same result as without)")
-    dask.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                      help="trace on the running Dask cluster of this scheduler, e.g. "
-                           "tcp://host:8786 (needs scatmodes[distributed])")
+    _add_dask(s, "trace on a local Dask cluster of N worker processes (same result as "
+                 "without)", "trace on the running Dask cluster of this scheduler")
     s.add_argument("-o", "--output", required=True, metavar="OUT.h5",
                    help=f"HDF5 file to write ({', '.join(HDF5_SUFFIXES)})")
     _add_progress(s)
@@ -830,13 +834,9 @@ def _parser() -> argparse.ArgumentParser:
                          "(compress.stability: where each method breaks) to DIR")
     st.add_argument("--small", action="store_true",
                     help="with --stability: reduced sizes (about half a minute)")
-    dask = st.add_mutually_exclusive_group()
-    dask.add_argument("--workers", type=_count, default=None, metavar="N",
-                      help="with --stability: run its measurements as tasks on a local Dask "
-                           "cluster of N worker processes (needs scatmodes[distributed])")
-    dask.add_argument("--scheduler", default=None, metavar="ADDRESS",
-                      help="with --stability: run them on the running Dask cluster of this "
-                           "scheduler, e.g. tcp://host:8786")
+    _add_dask(st, "with --stability: run its measurements as tasks on a local Dask cluster "
+                  "of N worker processes", "with --stability: run them on the running Dask "
+                  "cluster of this scheduler")
     _add_progress(st)
     st.set_defaults(func=_study)
 

@@ -42,7 +42,7 @@ import numpy as np
 
 from basis import Basis, CoefficientMatrix
 from basis.jit import pjit, prange
-from basis.validation import check_bytes
+from basis.validation import check_bytes, dask_client
 
 from ..io import atomic_path, temporary_name
 from ._checks import _positive_int, _seed
@@ -325,7 +325,7 @@ def simulate(
     rays = _positive_int(rays, "rays")
     seed_u = _seed(seed)
     if client is not None:
-        _check_client(client)
+        dask_client(client, "simulate")
     if incident not in ("cosine", "uniform"):
         raise ValueError(f"incident must be 'cosine' or 'uniform', got {incident!r}")
     targets = _positive_int(targets, "targets")
@@ -396,19 +396,6 @@ def simulate(
         # not in the checkpoint's meta: the workers are no property of the estimate
         meta = dict(meta, workers=sorted(workers))
     return SimulationResult(acc, basis, meta)
-
-
-def _check_client(client: Any) -> None:
-    try:
-        from distributed import Client
-    except ImportError:
-        raise ImportError("simulate(client=...) needs dask.distributed, which is not installed: "
-                          "pip install 'scatmodes[distributed]'") from None
-    if not isinstance(client, Client):
-        raise TypeError(f"client must be a dask.distributed.Client, got {type(client).__name__}")
-    if client.status != "running":
-        raise ValueError(f"client must be connected to a running cluster, its status is "
-                         f"{client.status!r}: create a new Client")
 
 
 def _local_steps(surface: Heightfield | Scene, basis: Basis, seed: np.uint64,

@@ -46,3 +46,18 @@ def test_integers_choices_bytes_and_batches():
     assert v.broadcast_batch(a, b) == (4, 5)
     with pytest.raises(ValueError, match="wi and wo must have broadcastable batch shapes"):
         v.broadcast_batch(np.zeros((2, 3)), np.zeros((3, 3)))
+
+
+def test_dask_client_check(monkeypatch):
+    """The one check behind every client= argument: type, then a missing extra."""
+    import sys
+
+    from basis.validation import dask_client
+
+    pytest.importorskip("distributed")
+    with pytest.raises(TypeError, match="dask.distributed.Client, got str"):
+        dask_client("tcp://host:8786", "simulate")
+    monkeypatch.setitem(sys.modules, "distributed", None)  # as if not installed
+    with pytest.raises(ImportError, match=r"write_all\(client=...\) needs dask.distributed.*"
+                                          r"pip install 'scatmodes\[distributed\]'"):
+        dask_client(object(), "write_all")
