@@ -350,10 +350,10 @@ class MatrixBRDF(BRDF):
         return np.where(wo[:, 2] > 0, p, 0.0)
 
     def __repr__(self) -> str:
-        digest = hashlib.sha256(np.ascontiguousarray(self.matrix.matrix).tobytes()).hexdigest()
+        checksum = hashlib.sha256(np.ascontiguousarray(self.matrix.matrix).tobytes()).hexdigest()
         form = "isotropic" if self.isotropic else "dense"
         return (f"MatrixBRDF({self.matrix.basis!r}, quantity={self.matrix.quantity!r}, {form}, "
-                f"sha256={digest[:12]}, negative={self.negative!r})")
+                f"sha256={checksum[:12]}, negative={self.negative!r})")
 
 
 def _pair(value: object, name: str, low: tuple[int, int]) -> tuple[int, int]:

@@ -65,7 +65,7 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         ``format``, ``directions_done``, ``rays``, ``chunks``, ``seconds``, ``basis``,
         ``matrix_size``, ``surface``, ``incident``, ``targets``, ``chunk``, ``seeds``,
         ``energy`` (reflected, absorbed, lost) and ``sha256`` (whether the checkpoint carries
-        a digest of its content).
+        a SHA-256 checksum of its content).
     """
     p = Path(os.fspath(path))
     if not p.exists():

@@ -782,7 +782,7 @@ def _canonical(acc: dict[str, Any], done: int, meta: dict[str, Any]) -> Iterator
         yield a.tobytes() if a.ndim == 0 else memoryview(a).cast("B")
 
 
-def _digest(acc: dict[str, Any], done: int, meta: dict[str, Any]) -> str:
+def _checksum(acc: dict[str, Any], done: int, meta: dict[str, Any]) -> str:
     h = hashlib.sha256()
     for part in _canonical(acc, done, meta):
         h.update(part)
@@ -800,7 +800,7 @@ def _save(path: Path, acc: dict[str, Any], done: int, meta: dict[str, Any]) -> N
         for key, val in acc.items():
             f.create_dataset(key, data=np.asarray(
                 val, dtype=np.int64 if key in _COUNTS else np.float64))
-        f.attrs["sha256"] = _digest(acc, done, meta)
+        f.attrs["sha256"] = _checksum(acc, done, meta)
 
 
 class _Damaged(ValueError):
@@ -831,7 +831,7 @@ def _load(path: Path, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], int
             raise ValueError(f"{name} is not a simulate checkpoint (its format attribute is "
                              f"{fmt!r}, expected {_FORMAT!r})")
         try:
-            got, acc, done, digest = _read(f, meta, k)
+            got, acc, done, checksum = _read(f, meta, k)
         except _Damaged as err:
             raise ValueError(f"{name} is damaged: {err}; {advice}") from None
         except Exception as err:  # HDF5's errors on corrupt metadata have many types
@@ -839,7 +839,7 @@ def _load(path: Path, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], int
                              f"{' '.join(str(err).split())}); {advice}") from None
     if not acc:  # another basis: its matrices were not read
         _compatible(name, got, meta)
-    if fmt == _FORMAT and digest != _digest(acc, done, got):
+    if fmt == _FORMAT and checksum != _checksum(acc, done, got):
         raise ValueError(f"{name} is damaged: its content does not match its SHA-256 "
                          f"checksum (altered or corrupted after it was written); {advice}")
     _compatible(name, got, meta)
@@ -878,14 +878,14 @@ def _read(f: Any, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], dict[st
         raise _Damaged(f"attribute 'meta_seeds' must be a list of integers, got {seeds!r}")
     got["seeds"] = [int(x) for x in seeds]
     done = integer("directions_done", attr("directions_done"))
-    digest = None
+    checksum = None
     if f.attrs.get("format") == _FORMAT:
-        digest = attr("sha256")
-        if not isinstance(digest, str):
-            raise _Damaged(f"attribute 'sha256' must be text, got {digest!r}")
+        checksum = attr("sha256")
+        if not isinstance(checksum, str):
+            raise _Damaged(f"attribute 'sha256' must be text, got {checksum!r}")
     if got["basis"] != meta["basis"]:
         # another basis: _compatible says so; its matrices have another shape
-        return got, {}, done, digest
+        return got, {}, done, checksum
     shapes = {**{key: (k, k) for key in _MATRICES}, "bounces": (BOUNCE_BINS,),
               **{key: () for key in _COUNTS + _SCALARS}}
     acc: dict[str, Any] = {}
@@ -903,7 +903,7 @@ def _read(f: Any, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], dict[st
         val = ds[()]
         acc[key] = int(val) if key in _COUNTS else float(val) if not shape else \
             np.asarray(val, dtype=np.float64)
-    return got, acc, done, digest
+    return got, acc, done, checksum
 
 
 def _compatible(name: str, got: dict[str, Any], meta: dict[str, Any]) -> None:
