@@ -191,22 +191,24 @@ def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
 
 
 @njit(inline="always")
-def _grid_step(o, d, p, size, tol):
+def _grid_step(o, d, inv_d, p, size, inv_size, tol):
     """Step along one axis of a grid of cells of width ``size``.
 
-    Returns the cell index of the ray (origin o, direction d) at its position p, and the
-    distance t at which it leaves that cell. On a cell boundary (within tol * size) the cell
-    it is entering is taken, else the walk would make zero-length steps.
+    Returns the cell index of the ray (origin o, direction d, ``inv_d`` = 1 / d) at its
+    position p, and the distance t at which it leaves that cell. On a cell boundary (within
+    tol * size) the cell it is entering is taken, else the walk would make zero-length steps.
+    Multiplications by the precomputed inverses replace the divisions of a naive step: a
+    step is a few tens of instructions, and two divisions per axis were a third of them.
     """
-    i = int(np.floor(p / size))
+    i = int(np.floor(p * inv_size))
     if d > 0.0:
         if (i + 1) * size - p <= tol * size:
             i += 1
-        return i, ((i + 1) * size - o) / d
+        return i, ((i + 1) * size - o) * inv_d
     if d < 0.0:
         if p - i * size <= tol * size:
             i -= 1
-        return i, (i * size - o) / d
+        return i, (i * size - o) * inv_d
     return i, np.inf
 
 
@@ -215,6 +217,20 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
     # Walk the max pyramid from t = 0; returns (status, t, normal x, y, z).
     ny, nx = h.shape
     tol = 1e-9 * (hmax - hmin + sx + sy)
+    inv_dx = 1.0 / dx if dx != 0.0 else 0.0
+    inv_dy = 1.0 / dy if dy != 0.0 else 0.0
+    inv_sx = 1.0 / sx
+    inv_sy = 1.0 / sy
+    # node widths are powers of two times the top level's: a mask replaces the modulo (an
+    # integer division) when the grid is a power of two, the usual case
+    pow2 = (nx & (nx - 1)) == 0 and (ny & (ny - 1)) == 0
+    # never step past the slab [hmin, hmax] (vertical rays have tx = ty = inf)
+    if dz < 0.0:
+        t_slab = (hmin - 2.0 * tol - oz) / dz
+    elif dz > 0.0:
+        t_slab = (hmax + tol - oz) / dz
+    else:
+        t_slab = np.inf
     t = 0.0
     lev = top
     for _ in range(max_steps):
@@ -224,18 +240,18 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
         if dz < 0.0 and z < hmin - tol:
             return _LOST, t, 0.0, 0.0, 0.0  # passed through the surface (rounding)
         scale = float(1 << lev)
-        ix, tx = _grid_step(ox, dx, ox + t * dx, sx * scale, 1e-9)
-        iy, ty = _grid_step(oy, dy, oy + t * dy, sy * scale, 1e-9)
-        t1 = min(tx, ty)
-        # never step past the slab [hmin, hmax] (vertical rays have tx = ty = inf)
-        if dz < 0.0:
-            t1 = min(t1, (hmin - 2.0 * tol - oz) / dz)
-        elif dz > 0.0:
-            t1 = min(t1, (hmax + tol - oz) / dz)
+        iscale = 1.0 / scale  # exact: a power of two
+        ix, tx = _grid_step(ox, dx, inv_dx, ox + t * dx, sx * scale, inv_sx * iscale, 1e-9)
+        iy, ty = _grid_step(oy, dy, inv_dy, oy + t * dy, sy * scale, inv_sy * iscale, 1e-9)
+        t1 = min(tx, ty, t_slab)
         wl = nx >> lev
         hl = ny >> lev
-        cx = ix % wl
-        cy = iy % hl
+        if pow2:
+            cx = ix & (wl - 1)  # two's complement: also right for negative ix
+            cy = iy & (hl - 1)
+        else:
+            cx = ix % wl
+            cy = iy % hl
         zn = pyr[offs[lev] + cy * wl + cx]
         if min(z, oz + t1 * dz) > zn:
             t = t1

@@ -1021,6 +1021,8 @@ def _periodic_hit(ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi,
     # the cell. Returns (status, t, normal x, y, z, stored primitive or -1, front) with the
     # normal facing the ray and front as in _normal (True when nothing was hit).
     tol = 1e-9 * (zmax - zmin + lx + ly)
+    inv_dx = 1.0 / dx if dx != 0.0 else 0.0
+    inv_dy = 1.0 / dy if dy != 0.0 else 0.0
     t = 0.0
     for _ in range(max_steps):
         z = oz + t * dz
@@ -1028,8 +1030,8 @@ def _periodic_hit(ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi,
             return _ESCAPED, t, 0.0, 0.0, 0.0, -1, True
         if dz < 0.0 and z < zmin - tol:
             return _LOST, t, 0.0, 0.0, 0.0, -1, True
-        ix, tx = _grid_step(ox, dx, ox + t * dx, lx, 1e-12)
-        iy, ty = _grid_step(oy, dy, oy + t * dy, ly, 1e-12)
+        ix, tx = _grid_step(ox, dx, inv_dx, ox + t * dx, lx, 1.0 / lx, 1e-12)
+        iy, ty = _grid_step(oy, dy, inv_dy, oy + t * dy, ly, 1.0 / ly, 1e-12)
         t1 = min(tx, ty)
         if dz < 0.0:
             t1 = min(t1, (zmin - 2.0 * tol - oz) / dz)

@@ -610,12 +610,22 @@ def _fold(acc: dict[str, Any], delta: dict[str, Any]) -> None:
     acc["bounces"] += delta["bounces"]
 
 
+#: rows of m per parallel task and directions per cache block of _accumulate_kernel
+_ROWS = 8
+_DBLOCK = 32
+
+
 @pjit
 def _accumulate_kernel(bu, c, bv, w, per, m):
     # bu (D, K) b(U) per direction; c (D,) estimator constant; bv (D * per, K) b(V) per ray;
     # w (D * per,) exit weights; m (K, K) out: sum_d c_d b(U_d) S_d^T with the exit sums
     # S_d = sum_p w_dp b(V_dp) (Westin eq 25: one outer product per direction, not per ray).
-    # No BLAS: its spinning threads fight numba's for the two cores.
+    # No BLAS: its spinning threads fight numba's for the two cores, and its summation order
+    # may depend on the machine. Each m[j, k] sums over d in increasing order, so the result
+    # does not depend on the thread count. Threads own blocks of rows of m and walk the
+    # directions in blocks of _DBLOCK, whose exit sums stay in the core's cache while every
+    # row of the thread's block uses them (rows times D sweeps of S were bound by the shared
+    # cache's bandwidth).
     nd, kk = bu.shape
     sums = np.zeros((nd, kk))
     for d in prange(nd):
@@ -624,13 +634,20 @@ def _accumulate_kernel(bu, c, bv, w, per, m):
             if f != 0.0:
                 for k in range(kk):
                     sums[d, k] += f * bv[p, k]
-    for j in prange(kk):
-        for k in range(kk):
-            m[j, k] = 0.0
-        for d in range(nd):
-            a = c[d] * bu[d, j]
+    nblocks = (kk + _ROWS - 1) // _ROWS
+    for b in prange(nblocks):
+        j0 = b * _ROWS
+        j1 = min(kk, j0 + _ROWS)
+        for j in range(j0, j1):
             for k in range(kk):
-                m[j, k] += a * sums[d, k]
+                m[j, k] = 0.0
+        for d0 in range(0, nd, _DBLOCK):
+            d1 = min(nd, d0 + _DBLOCK)
+            for j in range(j0, j1):
+                for d in range(d0, d1):
+                    a = c[d] * bu[d, j]
+                    for k in range(kk):
+                        m[j, k] += a * sums[d, k]
 
 
 # -- checkpoints ------------------------------------------------------------------------------
