@@ -172,7 +172,8 @@ class Basis:
             out[:, si] = out[:, c]
         return out
 
-    def eval(self, dirs: ArrayLike) -> NDArray[np.float64]:
+    def eval(self, dirs: ArrayLike, *,
+             out: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
         """Evaluate every basis function at the given directions.
 
         Parameters
@@ -180,20 +181,34 @@ class Basis:
         dirs : (..., 3) array_like of float
             Unit vectors in the local frame (z is the surface normal). Hemisphere bases require
             z >= 0. Lengths within 1e-6 of one are accepted and renormalised.
+        out : (..., size) ndarray of float64, optional
+            C-contiguous array to write the values to (and return), e.g. a buffer reused
+            across batches of the same size; every element is overwritten.
 
         Returns
         -------
         (..., size) ndarray of float64
+            ``out`` when given.
         """
         d = as_directions(dirs, "dirs", upper=self.domain == "hemisphere")
         batch = d.shape[:-1]
         flat = d.reshape(-1, 3)
-        check_bytes(8.0 * flat.shape[0] * self.size,
-                    f"evaluating {self!r} at {flat.shape[0]} directions")
-        out = np.empty((flat.shape[0], self.size))
+        if out is None:
+            check_bytes(8.0 * flat.shape[0] * self.size,
+                        f"evaluating {self!r} at {flat.shape[0]} directions")
+            res = np.empty((flat.shape[0], self.size))
+        else:
+            if not isinstance(out, np.ndarray) or out.dtype != np.float64 or \
+                    out.shape != (*batch, self.size) or not out.flags.c_contiguous or \
+                    not out.flags.writeable:
+                got = f"{out.dtype} array of shape {out.shape}" \
+                    if isinstance(out, np.ndarray) else type(out).__name__
+                raise ValueError(f"out must be a writable C-contiguous float64 array of shape "
+                                 f"{(*batch, self.size)}, got {got}")
+            res = out.reshape(flat.shape[0], self.size)
         if flat.shape[0]:
-            self._eval_flat(flat, out)
-        return out.reshape(*batch, self.size)
+            self._eval_flat(flat, res)
+        return res.reshape(*batch, self.size) if out is None else out
 
     def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
         raise NotImplementedError

@@ -58,3 +58,27 @@ def test_radial_errors():
     with pytest.raises(TypeError, match="z must be an array of floats"):
         zb.radial(["a"])
     assert basis.SphericalHarmonics(2).radial([-1.0]).shape == (1, 9)
+
+
+@pytest.mark.parametrize("b", [basis.HemiZernike(5), basis.HemiHarmonics(4),
+                               basis.SphericalHarmonics(6)], ids=repr)
+def test_eval_into_out(b, rng):
+    # reference: eval without out; every element of out must be overwritten (NaN before)
+    d = rng.standard_normal((6, 5, 3))
+    d[..., 2] = np.abs(d[..., 2])
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    out = np.full((6, 5, b.size), np.nan)
+    got = b.eval(d, out=out)
+    assert got is out
+    np.testing.assert_array_equal(out, b.eval(d))
+
+
+def test_eval_out_errors():
+    b = basis.HemiZernike(3)
+    d = np.array([[0.0, 0.0, 1.0], [0.6, 0.0, 0.8]])
+    ro = np.empty((2, b.size))
+    ro.flags.writeable = False
+    for bad in [np.empty((2, b.size + 1)), np.empty((2, b.size), np.float32),
+                np.empty((b.size, 2)).T, ro, [[0.0] * b.size] * 2]:
+        with pytest.raises(ValueError, match="out must be a writable C-contiguous float64"):
+            b.eval(d, out=bad)

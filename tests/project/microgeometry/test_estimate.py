@@ -12,6 +12,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -95,6 +96,25 @@ def test_deterministic_across_threads_and_chunks(rough):
     e = simulate(rough, basis, rays=20000, seed=6, chunk=300)
     assert not np.array_equal(a.raw, e.raw)
 
+
+
+def test_reused_work_arrays_carry_nothing_between_runs(rough):
+    # the chunks' work arrays are reused from chunk to chunk (20000 rays in chunks of 300
+    # directions: the last chunk is smaller) until the run releases them; stale arrays of
+    # the right shapes holding NaN and inf (as a run killed mid-chunk in this thread leaves
+    # them) must be overwritten, not added to
+    basis = HemiZernike(4)
+    a = simulate(rough, basis, rays=20000, seed=5, chunk=300)
+    assert not est_mod._SCRATCH._bufs  # released at the end of the run
+    simulate(rough, HemiHarmonics(3), rays=3000, seed=9, chunk=77)
+    n, k = 300 * 8, basis.size
+    stale = {"dir": np.full((n, 3), np.nan), "w": np.full(n, np.inf),
+             "bu": np.full((300, k), np.nan), "bv": np.full((n, k), np.nan),
+             "sums": np.full((300, k), np.inf)}
+    with est_mod._SCRATCH._lock:
+        est_mod._SCRATCH._bufs[threading.get_ident()] = stale
+    b = simulate(rough, basis, rays=20000, seed=5, chunk=300)
+    assert np.array_equal(a.raw, b.raw)
 
 def test_merge_is_additive(rough):
     basis = HemiHarmonics(3)
