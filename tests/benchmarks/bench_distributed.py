@@ -8,15 +8,19 @@ mirror facets) and :func:`project.microgeometry.simulate` at ``HemiZernike(--ord
 directions of 8 rays). Rows:
 
 - ``local``: ``simulate`` in this process (numba threads on every core).
+- ``local 1 thread``: the same on one numba thread: the single-process, single-core time
+  against which the scaling of worker processes is read (``/1 thread``).
 - ``dask N``: the same call with ``client=`` on a ``LocalCluster(n_workers=N,
   threads_per_worker=1, processes=True)``; each worker process runs numba on its share of the
   cores. Every distributed matrix is checked to be bit-identical to the local one.
 
 Columns: wall time; ``/local``, the wall time over the local run's (issue 15 target: at most
-0.75 for 2 workers on 2 cores, 1M rays, order 8); ``efficiency``, the 1-worker time over N
-times the N-worker time (1 = perfect scaling across workers); ``overhead/task``, the 1-worker
-time minus the local time over the number of tasks (scatter, submit, transfer and fold of one
-chunk: a 1-worker cluster runs the same kernels on the same cores as the local run).
+0.75 of the single-process time for 2 workers on 2 cores, 1M rays, order 8; both readings of
+"single process" are printed: all cores, and ``/1 thread``); ``efficiency``, the 1-worker
+time over N times the N-worker time (1 = perfect scaling across workers); ``overhead/task``,
+the 1-worker time minus the local time over the number of tasks (scatter, submit, transfer
+and fold of one chunk: a 1-worker cluster runs the same kernels on the same cores as the
+local run).
 
 Each row is run once untimed first (JIT compile or cache load in every process, cluster start
 excluded) and then ``--repeats`` times; the best time is reported. The machine may be shared:
@@ -82,6 +86,8 @@ def main(argv: list[str] | None = None) -> int:
         print("bench_distributed needs dask.distributed: pip install 'scatmodes[distributed]'",
               file=sys.stderr)
         return 2
+    import numba
+
     from basis import HemiZernike
     from project.microgeometry import GaussianSurface, simulate
 
@@ -92,11 +98,24 @@ def main(argv: list[str] | None = None) -> int:
           f"({basis.size} functions); {args.rays} rays")
     simulate(surface, basis, rays=1000, seed=1)  # JIT compile or cache load
     t_local, ref = best(lambda: simulate(surface, basis, **run), args.repeats)
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    try:
+        t_serial, ser = best(lambda: simulate(surface, basis, **run), args.repeats)
+    finally:
+        numba.set_num_threads(threads)
+    if not np.array_equal(ser.matrix.matrix, ref.matrix.matrix):
+        print("local 1 thread: the matrix differs from the local run's", file=sys.stderr)
+        return 1
     tasks = int(ref._acc["chunks"])  # private: the number of chunks, one task each
     print(f"{tasks} chunks (tasks) of {ref.meta['chunk']} directions x "
           f"{ref.meta['targets']} rays")
-    print(f"{'run':>8} {'wall s':>8} {'/local':>7} {'efficiency':>10} {'overhead/task':>14}")
-    print(f"{'local':>8} {t_local:8.2f} {1.0:7.2f} {'':>10} {'':>14}")
+    print(f"{'run':>15} {'wall s':>8} {'/local':>7} {'/1 thread':>9} {'efficiency':>10} "
+          f"{'overhead/task':>14}")
+    print(f"{'local':>15} {t_local:8.2f} {1.0:7.2f} {t_local / t_serial:9.2f} {'':>10} "
+          f"{'':>14}")
+    print(f"{'local 1 thread':>15} {t_serial:8.2f} {t_serial / t_local:7.2f} {1.0:9.2f} "
+          f"{'':>10} {'':>14}")
     t_one = None
     for n in args.workers:
         with LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
@@ -113,7 +132,8 @@ def main(argv: list[str] | None = None) -> int:
             t_one = t
         eff = f"{t_one / (n * t):10.2f}" if t_one is not None else f"{'':>10}"
         over = f"{(t - t_local) / tasks * 1e3:11.1f} ms" if n == 1 else f"{'':>14}"
-        print(f"{'dask ' + str(n):>8} {t:8.2f} {t / t_local:7.2f} {eff} {over}")
+        print(f"{'dask ' + str(n):>15} {t:8.2f} {t / t_local:7.2f} {t / t_serial:9.2f} {eff} "
+              f"{over}")
     print("every distributed matrix is bit-identical to the local one")
     return 0
 
