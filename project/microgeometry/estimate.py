@@ -293,12 +293,14 @@ def simulate(
     ``fcntl`` is missing, the lock file is created with ``O_CREAT | O_EXCL`` instead, and a
     left-over one must be removed by hand.
 
-    Dask: the surface and basis are scattered to every worker once; each chunk of incident
-    directions is one task, a pure function of the seed and its first direction (counter-based
-    random streams), and at most a few tasks per worker are queued at a time. The results are
-    folded into the accumulators in chunk order, as in the local run, however the tasks finish,
-    so the sums are the same bits; a task that Dask runs again after its worker died returns
-    the same value and is counted once. The checkpoint (written by this process) holds the
+    Dask: the surface and basis are scattered to every worker once; a task traces a few
+    consecutive chunks of incident directions (about four tasks per worker, at most 2^20
+    rays each: a task costs the cluster milliseconds), a pure function of the seed and its
+    first direction (counter-based random streams), and at most a few tasks per worker are
+    queued at a time. The chunks' results are folded into the accumulators one by one in
+    chunk order, as in the local run, however the tasks finish, so the sums are the same
+    bits; a task that Dask runs again after its worker died returns the same values and is
+    counted once. The checkpoint (written by this process) holds the
     chunks folded so far, and can be resumed with or without a client. A worker process traces
     one chunk at a time on numba threads that take its share of the host's cores (the cores
     over the worker processes on that host), so one Dask thread per worker is enough
@@ -429,13 +431,14 @@ def _cpus() -> int:
         return os.cpu_count() or 1
 
 
-def _remote_chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: int,
-                  nd: int, per: int, cosine: bool,
-                  processes: dict[str, int]) -> dict[str, Any]:
-    """Run :func:`_chunk_delta` on a Dask worker; add the worker's address to the result.
+def _remote_chunks(surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
+                   chunks: list[tuple[int, int]], per: int, cosine: bool,
+                   processes: dict[str, int]) -> tuple[str, list[dict[str, Any]]]:
+    """Run :func:`_chunk_delta` on a Dask worker for each (start, directions) in ``chunks``.
 
-    ``processes`` maps host to the number of worker processes on it: each chunk's numba
-    threads get that share of the host's cores (the result does not depend on it).
+    Returns the worker's address and the chunks' results, in order. ``processes`` maps host
+    to the number of worker processes on it: each chunk's numba threads get that share of
+    the host's cores (the result does not depend on it).
     """
     import numba
     from distributed import get_worker
@@ -445,9 +448,17 @@ def _remote_chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, s
     threads = max(1, min(numba.config.NUMBA_NUM_THREADS, _cpus() // processes.get(host, 1)))
     with _WORKER_LOCK:
         numba.set_num_threads(threads)
-        delta = _chunk_delta(surface, basis, seed, start, nd, per, cosine)
-    delta["worker"] = address
-    return delta
+        deltas = [_chunk_delta(surface, basis, seed, start, nd, per, cosine)
+                  for start, nd in chunks]
+    return address, deltas
+
+
+#: a distributed run cuts its chunks into about this many tasks per worker (a few, so that
+#: the last ones balance the load), each at most _TASK_RAYS rays: a Dask task costs ~10 ms
+#: of the client's and scheduler's time and ~7 ms of the worker's here, which one task per
+#: chunk paid 31 times for a million rays
+_TASKS_PER_WORKER = 4
+_TASK_RAYS = 1 << 20
 
 
 def _host(address: str) -> str:
@@ -462,9 +473,10 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
                        workers: set[str]) -> Iterator[tuple[dict[str, Any], int]]:
     """Trace the chunks as tasks of a Dask cluster; yield states as :func:`_local_steps`.
 
-    Results are kept by chunk index and folded in index order as soon as the next one is
+    A task traces a few consecutive chunks (see _TASKS_PER_WORKER) and returns each one's
+    sums. They are kept by chunk index and folded in index order as soon as the next one is
     there, so the sums are those of the local run whatever the order in which tasks finish.
-    A task that Dask runs again (its worker died) returns the same value and is folded once.
+    A task that Dask runs again (its worker died) returns the same values and is folded once.
     """
     import uuid
 
@@ -478,8 +490,12 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
     processes: dict[str, int] = {}
     for addr in info:
         processes[_host(addr)] = processes.get(_host(addr), 0) + 1
+    # consecutive chunks per task; each chunk is still folded on its own, in order
+    group = max(1, min(-(-len(starts) // (_TASKS_PER_WORKER * max(1, len(info)))),
+                       _TASK_RAYS // (chunk * per)))
+    tasks = [starts[t:t + group] for t in range(0, len(starts), group)]
     # a few tasks per worker queued so that none waits, and a bound on the results held
-    # out of order (each holds a (K, K) matrix) behind a slow or retried chunk
+    # out of order (each holds a (K, K) matrix per chunk) behind a slow or retried task
     window = 2 * max(1, len(info)) + 2
     ahead = 4 * window
     # scattered once: the tasks refer to these copies instead of each carrying the scene
@@ -487,25 +503,27 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
     shared_basis = client.scatter(basis, broadcast=True, hash=False)
     prefix = f"scatmodes-simulate-{uuid.uuid4().hex}-"
     pending: dict[int, Any] = {}
-    results: dict[int, dict[str, Any]] = {}
+    results: dict[int, dict[str, Any]] = {}  # by chunk index
     queue = as_completed()
-    nxt = folded = 0
+    nxt = folded = 0  # next task to submit; chunks folded
     t_last = time.perf_counter()
 
-    def closed(i: int) -> RuntimeError:
+    def closed(t: int) -> RuntimeError:
         return RuntimeError(
-            f"simulate: chunk {i} was cancelled on the cluster (the client or the cluster was "
-            "closed during the run, or every worker holding the scattered surface died); "
-            "resume from the checkpoint with a running client")
+            f"simulate: task {t} (directions {tasks[min(t, len(tasks) - 1)][0]}..) was "
+            "cancelled on the cluster "
+            "(the client or the cluster was closed during the run, or every worker holding "
+            "the scattered surface died); resume from the checkpoint with a running client")
 
     def submit() -> None:
         nonlocal nxt
         if client.status != "running":
             raise closed(nxt)
-        while nxt < len(starts) and len(pending) < window and nxt - folded < ahead:
-            nd = min(chunk, ndirs - starts[nxt])
-            fut = client.submit(_remote_chunk, scene, shared_basis, seed, starts[nxt], nd,
-                                per, cosine, processes, key=f"{prefix}{nxt}", pure=False)
+        while nxt < len(tasks) and len(pending) < window and \
+                nxt * group - folded < ahead * group:
+            chunks = [(a, min(chunk, ndirs - a)) for a in tasks[nxt]]
+            fut = client.submit(_remote_chunks, scene, shared_basis, seed, chunks, per,
+                                cosine, processes, key=f"{prefix}{nxt}", pure=False)
             pending[nxt] = fut
             queue.add(fut)
             nxt += 1
@@ -513,24 +531,25 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
     try:
         submit()
         for fut in queue:
-            i = int(fut.key[len(prefix):])
-            if i < folded or i in results or i not in pending:
-                continue  # already counted: a chunk is folded exactly once
+            t = int(fut.key[len(prefix):])
+            if t not in pending:
+                continue  # already counted: a task is folded exactly once
             try:
-                delta = fut.result()
+                address, deltas = fut.result()
             except KilledWorker as err:
                 raise RuntimeError(
-                    f"simulate: chunk {i} (directions {starts[i]}..) was lost because the "
+                    f"simulate: task {t} (directions {tasks[t][0]}..) was lost because the "
                     f"workers running it died repeatedly ({err}); they may run out of "
                     "memory: give them more memory or use a smaller chunk, then resume from "
                     "the checkpoint") from None
             except CancelledError:
-                raise closed(i) from None
-            del pending[i]
-            workers.add(delta.pop("worker"))
-            results[i] = delta
-            if bar is not None:
-                bar.update(delta["rays"])
+                raise closed(t) from None
+            del pending[t]
+            workers.add(address)
+            for c, delta in enumerate(deltas, start=t * group):
+                results[c] = delta
+                if bar is not None:
+                    bar.update(delta["rays"])
             while folded in results:
                 new = _copy(acc)
                 _fold(new, results.pop(folded))
