@@ -157,7 +157,8 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
         bounces = 0
         while True:
             status, t, gx, gy, gz = _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx,
-                                               sy, hmin, hmax, max_steps)
+                                               sy, hmin, hmax, max_steps,
+                                               top if bounces == 0 else 0)
             if status == _ESCAPED:
                 break
             if status == _LOST or bounces >= max_bounces:
