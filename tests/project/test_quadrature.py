@@ -15,7 +15,7 @@ import pytest
 
 from basis import HemiHarmonics, HemiZernike, SphericalHarmonics, hemisphere_rule
 from project.brdf import BRDF, MirrorDelta, as_color
-from project.quadrature import default_quantity, project, radial_table
+from project.quadrature import _z_nodes, default_quantity, project, radial_table
 
 
 class Poly(BRDF):
@@ -196,6 +196,94 @@ def test_fixed_nodes_give_error_estimate():
     assert cm.info["nodes"] == (12, 24) and 1e-12 < cm.info["error_estimate"] < 1e-2
     np.testing.assert_allclose(cm.matrix, dense(Poly(0.0), HemiZernike(4), "f_cos", 12)[0],
                                rtol=0, atol=1e-13)
+
+
+def test_sqrt_z_rule_is_exact_on_half_integer_powers():
+    # int_0^1 z^(k - 1/2) dz = 2 / (2 k + 1): in t = sqrt(z) the integrand is 2 t^(2k), a
+    # polynomial of degree 2k <= 2n - 1, so the n-point rule is exact up to rounding
+    n = 8
+    k = np.arange(n)
+    z, w = _z_nodes(n, "sqrt")
+    got = np.sum(w[:, None] * z[:, None] ** (k - 0.5), axis=0)
+    np.testing.assert_allclose(got, 2.0 / (2 * k + 1), rtol=1e-14, atol=0)
+    # Gauss in z misses 1/sqrt(z) by ~1 / n (this is what the sqrt rule is for)
+    z, w = _z_nodes(n, "gauss")
+    assert abs(np.sum(w / np.sqrt(z)) - 2.0) > 0.05
+
+
+class SqrtSeparable(BRDF):
+    """g(w_i) g(w_o) with g = (1 + x / 2 + x y / 4 + z) / sqrt(z): anisotropic, reciprocal,
+    ~ 1/sqrt(cos theta) at the horizon like Ward's original lobe; M = c c^T exactly."""
+
+    isotropic = False
+
+    @staticmethod
+    def g(w):
+        x, y, z = w[..., 0], w[..., 1], w[..., 2]
+        with np.errstate(divide="ignore"):
+            return np.where(z > 0, (1 + x / 2 + x * y / 4 + z) / np.sqrt(z), 0.0)
+
+    def _eval(self, wi, wo):
+        return (self.g(wi) * self.g(wo))[:, None]
+
+
+def _sqrt_separable_reference(basis):
+    """c_j = int g b_j dw: azimuth by the uniform rule (exact: trigonometric polynomials of
+    degree <= order + 2), z by QUADPACK's algebraic-weight rule (QAWS, weight z^(-1/2)),
+    independent of the product rule under test."""
+    from scipy.integrate import quad
+
+    nphi = 2 * basis.order + 8
+    phi = 2 * np.pi * np.arange(nphi) / nphi
+
+    def h(z, j):  # sqrt(z) g(w) b_j(w) integrated over phi
+        s = np.sqrt(max(0.0, 1 - z * z))
+        w = np.stack([s * np.cos(phi), s * np.sin(phi), np.full(nphi, z)], axis=-1)
+        x, y = w[:, 0], w[:, 1]
+        return 2 * np.pi / nphi * np.sum((1 + x / 2 + x * y / 4 + z) * basis.eval(w)[:, j])
+
+    return np.array([quad(h, 0, 1, args=(j,), weight="alg", wvar=(-0.5, 0.0),
+                          epsabs=1e-14, epsrel=1e-13)[0] for j in range(basis.size)])
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of SqrtSeparable")  # ||q|| is infinite
+def test_horizon_singularity_takes_the_sqrt_z_rule():
+    zb = HemiZernike(4)
+    c = _sqrt_separable_reference(zb)
+    ref = np.outer(c, c)
+    scale = np.max(np.abs(ref))
+    cm = project(SqrtSeparable(), zb, quantity="f", tol=1e-9)
+    assert cm.info["z_rule"] == "sqrt" and cm.info["converged"]
+    # the sqrt rule is exact in z here and the azimuths are trigonometric polynomials: the
+    # error is QUADPACK's (1e-13) plus rounding; 1e-11 leaves room without hiding 1/n errors
+    np.testing.assert_allclose(cm.matrix, ref, rtol=0, atol=1e-11 * scale)
+    # the fixed-node rule is Gauss in z: off by ~1/n (what the test would see without the
+    # sqrt rule)
+    fixed = project(SqrtSeparable(), zb, quantity="f", nodes=cm.info["nodes"])
+    assert np.max(np.abs(fixed.matrix - ref)) > 1e-3 * scale
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of Poly")
+def test_reciprocal_half_grid_equals_full_grid():
+    # a reciprocal BRDF samples only z_i <= z_o; declaring it non-reciprocal samples all
+    # pairs: same nodes (fixed), same sums up to rounding, norm included
+    poly = Poly(0.3, scale=[1.0, 0.5])
+
+    class Undeclared(BRDF):  # the same function, not declared reciprocal
+        channels, isotropic, reciprocal, _scalar = 2, False, False, False
+
+        def _eval(self, wi, wo):
+            return poly._eval(wi, wo)
+
+    half = project(poly, HemiZernike(5), nodes=(9, 24))
+    full = project(Undeclared(), HemiZernike(5), nodes=(9, 24))
+    scale = np.max(np.abs(full.matrix))
+    np.testing.assert_allclose(half.matrix, full.matrix, rtol=0, atol=1e-13 * scale)
+    assert half.info["asymmetry"] == 0.0
+    # sqrt(1 - ||M||^2 / ||q||^2) resolves ~1e-8 (see truncation_error); a wrong weight of
+    # the folded pairs in ||q||^2 would move it by > 0.1
+    assert half.info["truncation_error"] == pytest.approx(full.info["truncation_error"],
+                                                          rel=0, abs=1e-8)
 
 
 @pytest.mark.parametrize("kwargs, exc, match", [
