@@ -459,6 +459,8 @@ def _remote_chunks(surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
 #: chunk paid 31 times for a million rays
 _TASKS_PER_WORKER = 4
 _TASK_RAYS = 1 << 20
+#: times a distributed run scatters the scene again after losing it with a worker
+_RESCATTERS = 5
 
 
 def _host(address: str) -> str:
@@ -499,10 +501,11 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
     window = 2 * max(1, len(info)) + 2
     ahead = 4 * window
     # scattered once: the tasks refer to these copies instead of each carrying the scene
-    scene = client.scatter(surface, broadcast=True, hash=False)
-    shared_basis = client.scatter(basis, broadcast=True, hash=False)
+    shared = [client.scatter(surface, broadcast=True, hash=False),
+              client.scatter(basis, broadcast=True, hash=False)]
+    rounds = 0  # times the scattered copies were lost and scattered again
     prefix = f"scatmodes-simulate-{uuid.uuid4().hex}-"
-    pending: dict[int, Any] = {}
+    pending: dict[int, Any] = {}  # by task index: the task's live future
     results: dict[int, dict[str, Any]] = {}  # by chunk index
     queue = as_completed()
     nxt = folded = 0  # next task to submit; chunks folded
@@ -511,9 +514,15 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
     def closed(t: int) -> RuntimeError:
         return RuntimeError(
             f"simulate: task {t} (directions {tasks[min(t, len(tasks) - 1)][0]}..) was "
-            "cancelled on the cluster "
-            "(the client or the cluster was closed during the run, or every worker holding "
-            "the scattered surface died); resume from the checkpoint with a running client")
+            "cancelled on the cluster (the client or the cluster was closed during the run, "
+            "or the workers kept dying); resume from the checkpoint with a running client")
+
+    def launch(t: int) -> None:
+        chunks = [(a, min(chunk, ndirs - a)) for a in tasks[t]]
+        fut = client.submit(_remote_chunks, *shared, seed, chunks, per, cosine, processes,
+                            key=f"{prefix}{rounds}-{t}", pure=False)
+        pending[t] = fut
+        queue.add(fut)
 
     def submit() -> None:
         nonlocal nxt
@@ -521,19 +530,15 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
             raise closed(nxt)
         while nxt < len(tasks) and len(pending) < window and \
                 nxt * group - folded < ahead * group:
-            chunks = [(a, min(chunk, ndirs - a)) for a in tasks[nxt]]
-            fut = client.submit(_remote_chunks, scene, shared_basis, seed, chunks, per,
-                                cosine, processes, key=f"{prefix}{nxt}", pure=False)
-            pending[nxt] = fut
-            queue.add(fut)
+            launch(nxt)
             nxt += 1
 
     try:
         submit()
         for fut in queue:
-            t = int(fut.key[len(prefix):])
-            if t not in pending:
-                continue  # already counted: a task is folded exactly once
+            t = int(fut.key.rsplit("-", 1)[1])
+            if t not in pending or pending[t].key != fut.key:
+                continue  # already counted (a task is folded exactly once), or superseded
             try:
                 address, deltas = fut.result()
             except KilledWorker as err:
@@ -543,7 +548,18 @@ def _distributed_steps(client: Any, surface: Heightfield | Scene, basis: Basis,
                     "memory: give them more memory or use a smaller chunk, then resume from "
                     "the checkpoint") from None
             except CancelledError:
-                raise closed(t) from None
+                if client.status != "running" or rounds >= _RESCATTERS:
+                    raise closed(t) from None
+                # Dask keeps a single replica of scattered data once no queued task needs
+                # the others (its active memory manager), so a dying worker can take the
+                # scene with it: the scheduler then cancels every task that needs it.
+                # Scatter again and launch the unfinished tasks anew (same values).
+                rounds += 1
+                shared = [client.scatter(surface, broadcast=True, hash=False),
+                          client.scatter(basis, broadcast=True, hash=False)]
+                for tt in sorted(pending):
+                    launch(tt)
+                continue
             del pending[t]
             workers.add(address)
             for c, delta in enumerate(deltas, start=t * group):
