@@ -42,6 +42,8 @@ class _Harmonics(Basis):
         self._a, self._b, self._d = _legendre_tables(self._order)
         self._rows = _row_tables(self._order, self._a, self._b)
         self._smin = _seed_floor(self._order, self._norm)
+        # column of each function in the full basis, where the kernel computes it
+        self._cols = self._degree * self._degree + self._degree + self._azimuthal
 
     @property
     def lmax(self) -> int:
@@ -50,7 +52,7 @@ class _Harmonics(Basis):
 
     def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
         _eval_harmonics(writable(dirs), self._order, _PARITY_CODE[self._parity], self._norm,
-                        self._a, self._b, self._d, self._rows, self._smin, out)
+                        self._a, self._b, self._d, self._rows, self._smin, self._cols, out)
 
 
 class SphericalHarmonics(_Harmonics):
@@ -281,13 +283,9 @@ def _pos(l, m, parity):
 
 #: Points per block of the lane kernel: the recurrence runs over a block's points at once.
 _LANES = 8
-#: Directions per parallel task (scratch arrays are allocated once per task); even, and a
-#: multiple of _LANES.
+#: Directions per parallel task (scratch arrays are allocated once per task); a multiple of
+#: _LANES.
 _TASK = 32 * _LANES
-#: Degrees from which the lane kernel beats the per-point kernels (measured on two cores).
-_LANE_LMAX = 24
-#: From this degree on, output rows are touched sequentially before the scattered writes.
-_TOUCH_LMAX = 12
 
 
 def _row_tables(lmax: int, a: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
@@ -309,10 +307,10 @@ def _seed_floor(lmax: int, norm: float) -> float:
     return float((_TINY / p00) ** (1.0 / lmax)) * (1.0 + 1e-12)
 
 
-def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, out):
-    """Evaluate by the fastest strategy for ``lmax``; all give bit-identical values."""
+def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, cols, out):
+    """Evaluate into ``out``; the lane kernel and its per-direction fallback give the same bits."""
     off = triangular_offsets(lmax)
-    _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, rows[0], rows[1], smin, out)
+    _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, rows[0], rows[1], smin, cols, out)
 
 
 @njit(inline="always")
@@ -382,115 +380,34 @@ def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
 
 
 @njit
-def _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out):
-    # Directions lo..hi-1, two per iteration: the recurrence in l is a chain of dependent
-    # multiplications, and two independent chains keep the FPU busy. Only parity 2 (all
-    # harmonics) has this path; one parity class goes through _sh_point, which keeps the
-    # compiled kernel small (its compilation time grows fast with the code inlined).
-    # Same operations in the same order as _sh_point, so the same bits; a direction with
-    # 0 < sin(theta) < smin needs the carried exponent and takes _sh_point.
-    sqrt2 = np.sqrt(2.0)
-    p00 = norm / np.sqrt(4.0 * np.pi)
-    for i in range(lo, hi, 2):
-        j = min(i + 1, hi - 1)  # odd count: the last direction twice, the same values twice
-        z, s, c1, s1 = _unit(dirs, i)
-        zb, sb, c1b, s1b = _unit(dirs, j)
-        if parity != 2 or (0.0 < s < smin) or (0.0 < sb < smin):
-            # one parity class (HemiHarmonics), or a seed that needs the carried exponent
-            _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
-            _sh_point(dirs, j, lmax, parity, norm, a, b, d, off, out[j])
-            continue
-        row = out[i]
-        rowb = out[j]
-        if lmax >= _TOUCH_LMAX:
-            # a long row is written column by column, scattered over many cache lines: one
-            # sequential pass first brings them in as a stream
-            row[:] = 0.0
-            rowb[:] = 0.0
-        cm = sqrt2
-        sm = 0.0
-        pmm = p00
-        cmb = sqrt2
-        smb = 0.0
-        pmmb = p00
-        fc = 1.0
-        fs = 0.0
-        fcb = 1.0
-        fsb = 0.0
-        for m in range(lmax + 1):
-            if m > 0:
-                t = cm * c1 - sm * s1
-                sm = sm * c1 + cm * s1
-                cm = t
-                pmm *= d[m] * s
-                fc = cm
-                fs = sm
-                t = cmb * c1b - smb * s1b
-                smb = smb * c1b + cmb * s1b
-                cmb = t
-                pmmb *= d[m] * sb
-                fcb = cmb
-                fsb = smb
-            k = m * m + 2 * m  # position of (l, m) = (m, m); (l, -m) is 2m before
-            row[k] = pmm * fc
-            rowb[k] = pmmb * fcb
-            if m > 0:
-                row[k - 2 * m] = pmm * fs
-                rowb[k - 2 * m] = pmmb * fsb
-            if m == lmax:
-                continue
-            base = off[m] - m
-            p2 = pmm
-            p1 = a[base + m + 1] * z * pmm
-            p2b = pmmb
-            p1b = a[base + m + 1] * zb * pmmb
-            k += 2 * m + 2
-            row[k] = p1 * fc
-            rowb[k] = p1b * fcb
-            if m > 0:
-                row[k - 2 * m] = p1 * fs
-                rowb[k - 2 * m] = p1b * fsb
-            if m == 0:
-                for l in range(2, lmax + 1):
-                    al = a[base + l]
-                    bl = b[base + l]
-                    p = al * z * p1 - bl * p2
-                    pb = al * zb * p1b - bl * p2b
-                    p2 = p1
-                    p1 = p
-                    p2b = p1b
-                    p1b = pb
-                    k += 2 * l
-                    row[k] = p
-                    rowb[k] = pb
-            else:
-                for l in range(m + 2, lmax + 1):
-                    al = a[base + l]
-                    bl = b[base + l]
-                    p = al * z * p1 - bl * p2
-                    pb = al * zb * p1b - bl * p2b
-                    p2 = p1
-                    p1 = p
-                    p2b = p1b
-                    p1b = pb
-                    k += 2 * l
-                    row[k] = p * fc
-                    row[k - 2 * m] = p * fs
-                    rowb[k] = pb * fcb
-                    rowb[k - 2 * m] = pb * fsb
-
-
-@njit
-def _sh_blocks(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, rows, cc, ss,
-               seed, zz, out):
+def _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
     # Directions lo..hi-1 in blocks of _LANES that run the recurrence together, row l by row
-    # l: the innermost loops go over the lanes with a fixed trip count, so they vectorise, and
-    # the chains of different lanes overlap. ra, rb: a, b by row (_row_tables); rows, cc, ss,
-    # seed, zz: scratch. A block with a direction needing the carried exponent
-    # (0 < sin(theta) < smin), and a last partial block, take _sh_point; the others give its
-    # bits (same operations in the same order).
+    # l: the innermost loops go over the lanes with a fixed trip count, and the chains of
+    # different lanes overlap. ra, rb: a, b by row (_row_tables). Every index is unsigned or
+    # a loop counter from 0: numba wraps negative signed indices around, and that test on
+    # every access costs more than the arithmetic. Scratch is allocated here, so that its
+    # shapes are known to the compiler.
+    # A block's values go to buf, the full basis in flat order for each lane (the parity
+    # classes of HemiHarmonics are picked by cols when copied out).
+    # A block with a direction needing the carried exponent (0 < sin(theta) < smin), and a
+    # last partial block, take _sh_point; the others give its bits (same operations in the
+    # same order; an m = 0 value is stored as p where _sh_point stores p * 1.0).
+    u0 = np.uint64(0)
+    u1 = np.uint64(1)
+    u2 = np.uint64(2)
+    ul = np.uint64(lmax)
     sqrt2 = np.sqrt(2.0)
     p00 = norm / np.sqrt(4.0 * np.pi)
+    zz = np.empty(_LANES)
+    sn = np.empty(_LANES)
+    c1 = np.empty(_LANES)
+    s1 = np.empty(_LANES)
+    cc = np.empty((lmax + 1, _LANES))
+    ss = np.empty((lmax + 1, _LANES))
+    seed = np.empty((lmax + 1, _LANES))
+    pa = np.empty((lmax + 1, _LANES))
+    pb = np.empty((lmax + 1, _LANES))
+    buf = np.empty((_LANES, (lmax + 1) * (lmax + 1)))
     nfull = (hi - lo) // _LANES
     for i in range(lo + nfull * _LANES, hi):
         _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
@@ -498,80 +415,94 @@ def _sh_blocks(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, row
         i0 = lo + blk * _LANES
         slow = False
         for j in range(_LANES):
-            z, s, c1, s1 = _unit(dirs, i0 + j)
+            z, s, cj, sj = _unit(dirs, i0 + j)
             slow |= 0.0 < s < smin
             zz[j] = z
-            cm = sqrt2
-            sm = 0.0
-            pmm = p00
-            cc[0, j] = 1.0
-            ss[0, j] = 0.0
-            seed[0, j] = pmm
-            for m in range(1, lmax + 1):
-                t = cm * c1 - sm * s1
-                sm = sm * c1 + cm * s1
-                cm = t
-                cc[m, j] = cm
-                ss[m, j] = sm
-                pmm *= d[m] * s
-                seed[m, j] = pmm
+            sn[j] = s
+            c1[j] = cj
+            s1[j] = sj
         if slow:
             for j in range(_LANES):
                 _sh_point(dirs, i0 + j, lmax, parity, norm, a, b, d, off, out[i0 + j])
             continue
-        for l in range(lmax + 1):
-            o = (l * (l + 1)) // 2
-            p = rows[l % 3]
-            p1 = rows[(l + 2) % 3]
-            p2 = rows[(l + 1) % 3]
-            for m in range(l + 1):
-                if m < l - 1:
+        for j in range(_LANES):
+            cc[0, j] = 1.0
+            ss[0, j] = 0.0
+            seed[0, j] = p00
+            pa[0, j] = p00
+            buf[j, 0] = p00
+            if lmax > 0:
+                cc[1, j] = sqrt2 * c1[j] - 0.0 * s1[j]
+                ss[1, j] = 0.0 * c1[j] + sqrt2 * s1[j]
+                seed[1, j] = p00 * (d[1] * sn[j])
+        for m in range(u2, ul + u1):
+            dm = d[m]
+            for j in range(_LANES):
+                cm = cc[m - u1, j]
+                sm = ss[m - u1, j]
+                cc[m, j] = cm * c1[j] - sm * s1[j]
+                ss[m, j] = sm * c1[j] + cm * s1[j]
+                seed[m, j] = seed[m - u1, j] * (dm * sn[j])
+        p1 = pa
+        p2 = pb
+        for l in range(u1, ul + u1):
+            o = (l * (l + u1)) // u2
+            k0 = l * l + l
+            if l >= u2:
+                am = ra[o]
+                bm = rb[o]
+                for j in range(_LANES):
+                    v = am * zz[j] * p1[u0, j] - bm * p2[u0, j]
+                    p2[u0, j] = v
+                    buf[j, k0] = v
+                for m in range(u1, l - u1):
                     am = ra[o + m]
                     bm = rb[o + m]
                     for j in range(_LANES):
-                        p[m, j] = am * zz[j] * p1[m, j] - bm * p2[m, j]
-                elif m == l - 1:
-                    am = ra[o + m]
-                    for j in range(_LANES):
-                        p[m, j] = am * zz[j] * p1[m, j]
+                        v = am * zz[j] * p1[m, j] - bm * p2[m, j]
+                        p2[m, j] = v
+                        buf[j, k0 + m] = v * cc[m, j]
+                        buf[j, k0 - m] = v * ss[m, j]
+            am = ra[o + l - u1]
+            for j in range(_LANES):
+                v = am * zz[j] * seed[l - u1, j]
+                p2[l - u1, j] = v
+                if l == u1:
+                    buf[j, k0] = v
                 else:
-                    for j in range(_LANES):
-                        p[m, j] = seed[m, j]
-                if parity != 2 and (l + m) % 2 != parity:
-                    continue
-                kc = _pos(l, m, parity)
-                if m == 0:
-                    for j in range(_LANES):
-                        out[i0 + j, kc] = p[0, j]
-                else:
-                    ks = _pos(l, -m, parity)
-                    for j in range(_LANES):
-                        out[i0 + j, kc] = p[m, j] * cc[m, j]
-                    for j in range(_LANES):
-                        out[i0 + j, ks] = p[m, j] * ss[m, j]
+                    buf[j, k0 + l - u1] = v * cc[l - u1, j]
+                    buf[j, k0 - l + u1] = v * ss[l - u1, j]
+            for j in range(_LANES):
+                v = seed[l, j]
+                p2[l, j] = v
+                buf[j, k0 + l] = v * cc[l, j]
+                buf[j, k0 - l] = v * ss[l, j]
+            t = p1
+            p1 = p2
+            p2 = t
+        # rows i0..i0+_LANES-1 of out are contiguous: one sequential copy, where writing the
+        # values in the order computed would scatter them over _LANES rows. One parity class
+        # (HemiHarmonics) takes its columns of the full basis.
+        if parity == 2:
+            for j in range(_LANES):
+                for k in range(out.shape[1]):
+                    out[i0 + j, k] = buf[j, k]
+        else:
+            for j in range(_LANES):
+                for k in range(out.shape[1]):
+                    out[i0 + j, k] = buf[j, cols[k]]
 
 
 @pjit
-def _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, out):
+def _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
     # dirs (n, 3) float64 ~unit vectors; a, b (T,) recurrence tables by column m, ra, rb the
     # same by row l, d (lmax+1,) sectoral factors, off (lmax+1,) column starts; out (n, size)
-    # with size fixed by parity. One parallel kernel for both strategies, so a cold start
-    # compiles it once whatever the degrees used.
+    # with size fixed by parity. Scratch is allocated once per task of _TASK directions.
     n = dirs.shape[0]
-    lanes = lmax >= _LANE_LMAX
     for task in prange((n + _TASK - 1) // _TASK):
         lo = task * _TASK
         hi = min(n, lo + _TASK)
-        if lanes:
-            rows = np.empty((3, lmax + 1, _LANES))
-            cc = np.empty((lmax + 1, _LANES))
-            ss = np.empty((lmax + 1, _LANES))
-            seed = np.empty((lmax + 1, _LANES))
-            zz = np.empty(_LANES)
-            _sh_blocks(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, rows, cc,
-                       ss, seed, zz, out)
-        else:
-            _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out)
+        _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out)
 
 
 @njit(inline="always")
