@@ -213,14 +213,14 @@ def _grid_step(o, d, inv_d, p, size, inv_size, tol):
 
 
 @njit
-def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, max_steps,
-               lev):
-    # Walk the max pyramid from t = 0, starting at level lev; returns (status, t, normal x,
-    # y, z). Any start level finds the same first hit (the walk climbs after every node it
-    # clears and descends into every node it may touch); the cheapest is the top for a ray
-    # arriving from above the surface and 0 for a ray leaving a facet, which starts in the
-    # cell of its facet: from the top it would descend through every level to reach it
-    # (half of the steps of such a cast on a 512 x 512 field).
+def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, max_steps):
+    # Walk the max pyramid from t = 0; returns (status, t, normal x, y, z). The walk starts
+    # at level 0, in the cell under the origin: any start level finds the same first hit
+    # (the walk climbs after every node it clears and descends into every node it may
+    # touch), but the nodes of the upper levels hold heights close to the maximum, so a walk
+    # started at the top descends through nearly all of them before any progress. Measured
+    # on a 512 x 512 Gaussian field (m = 0.3, cosine incidence): 7.7 steps per incident
+    # ray instead of 15.4, and 6 instead of 15 for a ray leaving a facet.
     ny, nx = h.shape
     tol = 1e-9 * (hmax - hmin + sx + sy)
     inv_dx = 1.0 / dx if dx != 0.0 else 0.0
@@ -238,6 +238,7 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
     else:
         t_slab = np.inf
     t = 0.0
+    lev = 0
     for _ in range(max_steps):
         z = oz + t * dz
         if dz >= 0.0 and z > hmax:

@@ -157,8 +157,7 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
         bounces = 0
         while True:
             status, t, gx, gy, gz = _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx,
-                                               sy, hmin, hmax, max_steps,
-                                               top if bounces == 0 else 0)
+                                               sy, hmin, hmax, max_steps)
             if status == _ESCAPED:
                 break
             if status == _LOST or bounces >= max_bounces:

@@ -286,8 +286,7 @@ def _step_kernel(act, o, d, w, nb, lost, h, pyr, offs, top, sx, sy, hmin, hmax, 
     for a in prange(act.shape[0]):
         r = act[a]
         code, t, gx, gy, gz = _intersect(o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
-                                         h, pyr, offs, top, sx, sy, hmin, hmax, max_steps,
-                                         top if nb[r] == 0 else 0)
+                                         h, pyr, offs, top, sx, sy, hmin, hmax, max_steps)
         _record(r, code, t, gx, gy, gz, eps, lx, ly, o, d, w, nb, lost, max_bounces, status, g)
 
 
