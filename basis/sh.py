@@ -283,9 +283,13 @@ def _pos(l, m, parity):
 
 #: Points per block of the lane kernel: the recurrence runs over a block's points at once.
 _LANES = 8
-#: Directions per parallel task (scratch arrays are allocated once per task); a multiple of
-#: _LANES.
+#: Directions per parallel task (scratch arrays are allocated once per task); even, and a
+#: multiple of _LANES.
 _TASK = 32 * _LANES
+#: Below this degree the full basis takes _sh_pairs (two directions at a time, rows written
+#: straight to the output), from it _sh_lanes (measured on two cores: pairs faster at
+#: lmax = 8, lanes faster at 12 and above).
+_PAIR_LMAX = 12
 
 
 def _row_tables(lmax: int, a: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
@@ -493,16 +497,115 @@ def _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols
                     out[i0 + j, k] = buf[j, cols[k]]
 
 
+@njit
+def _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out):
+    # Directions lo..hi-1, two per iteration, for parity 2 and lmax < _PAIR_LMAX: the
+    # recurrence in l is a chain of dependent multiplications, and two independent chains
+    # keep the FPU busy; each row (under 1.2 KB) is written straight to out.
+    # Same operations in the same order as _sh_point, so the same bits; a direction with
+    # 0 < sin(theta) < smin needs the carried exponent and takes _sh_point.
+    sqrt2 = np.sqrt(2.0)
+    p00 = norm / np.sqrt(4.0 * np.pi)
+    for i in range(lo, hi, 2):
+        j = min(i + 1, hi - 1)  # odd count: the last direction twice, the same values twice
+        z, s, c1, s1 = _unit(dirs, i)
+        zb, sb, c1b, s1b = _unit(dirs, j)
+        if parity != 2 or (0.0 < s < smin) or (0.0 < sb < smin):
+            # one parity class (HemiHarmonics), or a seed that needs the carried exponent
+            _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
+            _sh_point(dirs, j, lmax, parity, norm, a, b, d, off, out[j])
+            continue
+        row = out[i]
+        rowb = out[j]
+        cm = sqrt2
+        sm = 0.0
+        pmm = p00
+        cmb = sqrt2
+        smb = 0.0
+        pmmb = p00
+        fc = 1.0
+        fs = 0.0
+        fcb = 1.0
+        fsb = 0.0
+        for m in range(lmax + 1):
+            if m > 0:
+                t = cm * c1 - sm * s1
+                sm = sm * c1 + cm * s1
+                cm = t
+                pmm *= d[m] * s
+                fc = cm
+                fs = sm
+                t = cmb * c1b - smb * s1b
+                smb = smb * c1b + cmb * s1b
+                cmb = t
+                pmmb *= d[m] * sb
+                fcb = cmb
+                fsb = smb
+            k = m * m + 2 * m  # position of (l, m) = (m, m); (l, -m) is 2m before
+            row[k] = pmm * fc
+            rowb[k] = pmmb * fcb
+            if m > 0:
+                row[k - 2 * m] = pmm * fs
+                rowb[k - 2 * m] = pmmb * fsb
+            if m == lmax:
+                continue
+            base = off[m] - m
+            p2 = pmm
+            p1 = a[base + m + 1] * z * pmm
+            p2b = pmmb
+            p1b = a[base + m + 1] * zb * pmmb
+            k += 2 * m + 2
+            row[k] = p1 * fc
+            rowb[k] = p1b * fcb
+            if m > 0:
+                row[k - 2 * m] = p1 * fs
+                rowb[k - 2 * m] = p1b * fsb
+            if m == 0:
+                for l in range(2, lmax + 1):
+                    al = a[base + l]
+                    bl = b[base + l]
+                    p = al * z * p1 - bl * p2
+                    pb = al * zb * p1b - bl * p2b
+                    p2 = p1
+                    p1 = p
+                    p2b = p1b
+                    p1b = pb
+                    k += 2 * l
+                    row[k] = p
+                    rowb[k] = pb
+            else:
+                for l in range(m + 2, lmax + 1):
+                    al = a[base + l]
+                    bl = b[base + l]
+                    p = al * z * p1 - bl * p2
+                    pb = al * zb * p1b - bl * p2b
+                    p2 = p1
+                    p1 = p
+                    p2b = p1b
+                    p1b = pb
+                    k += 2 * l
+                    row[k] = p * fc
+                    row[k - 2 * m] = p * fs
+                    rowb[k] = pb * fcb
+                    rowb[k - 2 * m] = pb * fsb
+
+
 @pjit
 def _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
     # dirs (n, 3) float64 ~unit vectors; a, b (T,) recurrence tables by column m, ra, rb the
     # same by row l, d (lmax+1,) sectoral factors, off (lmax+1,) column starts; out (n, size)
-    # with size fixed by parity. Scratch is allocated once per task of _TASK directions.
+    # with size fixed by parity; cols (size,) the column of each function in the full basis.
+    # One parallel kernel for both strategies, so a cold start compiles it once whatever the
+    # degrees used.
     n = dirs.shape[0]
+    pairs = parity == 2 and lmax < _PAIR_LMAX
     for task in prange((n + _TASK - 1) // _TASK):
         lo = task * _TASK
         hi = min(n, lo + _TASK)
-        _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out)
+        if pairs:
+            _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out)
+        else:
+            _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out)
 
 
 @njit(inline="always")
