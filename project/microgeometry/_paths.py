@@ -216,17 +216,15 @@ def _grid_step(o, d, inv_d, p, size, inv_size, tol):
 def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, max_steps):
     # Walk the max pyramid from t = 0; returns (status, t, normal x, y, z). The walk starts
     # at level 0, in the cell under the origin: any start level finds the same first hit
-    # (the walk climbs after every node it clears and descends into every node it may
-    # touch), but the nodes of the upper levels hold heights close to the maximum, so a walk
-    # started at the top descends through nearly all of them before any progress. Measured
-    # on a 512 x 512 Gaussian field (m = 0.3, cosine incidence): 7.7 steps per incident
-    # ray instead of 15.4, and 6 instead of 15 for a ray leaving a facet.
+    # (the walk skips only nodes the ray clears and descends into every other one), but the
+    # nodes of the upper levels hold heights close to the maximum, so a walk started at the
+    # top descends through nearly all of them before any progress. Measured on a 512 x 512
+    # Gaussian field (m = 0.3, cosine incidence): 7.7 steps per incident ray instead of
+    # 15.4, and 6 instead of 15 for a ray leaving a facet.
     ny, nx = h.shape
     tol = 1e-9 * (hmax - hmin + sx + sy)
     inv_dx = 1.0 / dx if dx != 0.0 else 0.0
     inv_dy = 1.0 / dy if dy != 0.0 else 0.0
-    inv_sx = 1.0 / sx
-    inv_sy = 1.0 / sy
     # node widths are powers of two times the top level's: a mask replaces the modulo (an
     # integer division) when the grid is a power of two, the usual case
     pow2 = (nx & (nx - 1)) == 0 and (ny & (ny - 1)) == 0
@@ -237,35 +235,62 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
         t_slab = (hmax + tol - oz) / dz
     else:
         t_slab = np.inf
-    t = 0.0
+    # the level's node size, its inverse, node counts and offset, kept up to date as the
+    # level changes (doubling and halving are exact)
     lev = 0
+    wx = sx
+    wy = sy
+    iwx = 1.0 / sx
+    iwy = 1.0 / sy
+    wl = nx
+    hl = ny
+    off = offs[0]
+    t = 0.0
     for _ in range(max_steps):
         z = oz + t * dz
         if dz >= 0.0 and z > hmax:
             return _ESCAPED, t, 0.0, 0.0, 0.0
         if dz < 0.0 and z < hmin - tol:
             return _LOST, t, 0.0, 0.0, 0.0  # passed through the surface (rounding)
-        scale = float(1 << lev)
-        iscale = 1.0 / scale  # exact: a power of two
-        ix, tx = _grid_step(ox, dx, inv_dx, ox + t * dx, sx * scale, inv_sx * iscale, 1e-9)
-        iy, ty = _grid_step(oy, dy, inv_dy, oy + t * dy, sy * scale, inv_sy * iscale, 1e-9)
+        ix, tx = _grid_step(ox, dx, inv_dx, ox + t * dx, wx, iwx, 1e-9)
+        iy, ty = _grid_step(oy, dy, inv_dy, oy + t * dy, wy, iwy, 1e-9)
         t1 = min(tx, ty, t_slab)
-        wl = nx >> lev
-        hl = ny >> lev
         if pow2:
             cx = ix & (wl - 1)  # two's complement: also right for negative ix
             cy = iy & (hl - 1)
         else:
             cx = ix % wl
             cy = iy % hl
-        zn = pyr[offs[lev] + cy * wl + cx]
+        zn = pyr[off + cy * wl + cx]
         if min(z, oz + t1 * dz) > zn:
+            # the ray clears the node: climb only if its exit leaves the parent node too,
+            # else the parent (holding the next node, a sibling) would be examined only to
+            # be descended into again (11 % fewer steps, the same walk otherwise)
+            up = t_slab <= min(tx, ty)
+            if tx <= ty and ((ix & 1) == 1 if dx > 0.0 else (ix & 1) == 0):
+                up = True
+            if ty <= tx and ((iy & 1) == 1 if dy > 0.0 else (iy & 1) == 0):
+                up = True
             t = t1
-            if lev < top:
+            if up and lev < top:
                 lev += 1
+                wx *= 2.0
+                wy *= 2.0
+                iwx *= 0.5
+                iwy *= 0.5
+                wl >>= 1
+                hl >>= 1
+                off = offs[lev]
             continue
         if lev > 0:
             lev -= 1
+            wx *= 0.5
+            wy *= 0.5
+            iwx *= 2.0
+            iwy *= 2.0
+            wl <<= 1
+            hl <<= 1
+            off = offs[lev]
             continue
         hit, th, gx, gy, gz = _cell(ix, iy, cx, cy, t, t1, ox, oy, oz, dx, dy, dz, h, sx, sy)
         if hit:
@@ -273,6 +298,13 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
         t = t1
         if lev < top:
             lev += 1
+            wx *= 2.0
+            wy *= 2.0
+            iwx *= 0.5
+            iwy *= 0.5
+            wl >>= 1
+            hl >>= 1
+            off = offs[lev]
     return _LOST, t, 0.0, 0.0, 0.0
 
 

@@ -1,6 +1,7 @@
 """_paths.py: the shared facet-event kernels, called directly -- the Fresnel kernel of either
 side of an interface (total internal reflection included) and the dielectric event (Snell's
-law, the choice by Fresnel probability).
+law, the choice by Fresnel probability) -- and the max-pyramid walk of height fields, against
+a brute-force search over every triangle under the ray.
 
 References: Fresnel's equations written with the explicit refraction cosine (Hecht, Optics,
 eqs 4.42-4.43; a different formulation from the kernel's, which uses the complex-index form)
@@ -74,3 +75,89 @@ def test_event_total_internal_reflection():
                                              np.uint64(_stream(np.uint64(3), np.uint64(i), 1)))
         assert not refr and w == 1.0
         np.testing.assert_allclose([dx, dy, dz], direction(60.0, 180.0), rtol=0, atol=1e-15)
+
+
+def _brute_first_hit(h, sx, sy, o, d):
+    """(t, upward unit normal) of the first triangle of the periodic surface the ray meets,
+    or (inf, None): every triangle of every cell the ray passes over inside the height slab,
+    Moller-Trumbore, the cell split along u = v as the tracer's (00, 10, 11), (00, 11, 01)."""
+    ny, nx = h.shape
+    hmin, hmax = h.min(), h.max()
+    ts = [0.0]
+    if d[2] != 0:
+        ts.append(((hmin if d[2] < 0 else hmax) - o[2]) / d[2])
+    else:
+        ts.append(4 * (nx * sx + ny * sy) / max(np.hypot(d[0], d[1]), 1e-300))
+    ends = o[:2] + np.outer([max(ts[0], 0.0), ts[1]], d[:2])
+    i0, i1 = np.floor(ends[:, 0].min() / sx) - 1, np.floor(ends[:, 0].max() / sx) + 1
+    j0, j1 = np.floor(ends[:, 1].min() / sy) - 1, np.floor(ends[:, 1].max() / sy) + 1
+    ii, jj = np.meshgrid(np.arange(i0, i1 + 1), np.arange(j0, j1 + 1))
+    ii, jj = ii.ravel().astype(int), jj.ravel().astype(int)
+    cx, cy = ii % nx, jj % ny
+    cx1, cy1 = (cx + 1) % nx, (cy + 1) % ny
+    p00 = np.stack([ii * sx, jj * sy, h[cy, cx]], -1)
+    p10 = np.stack([(ii + 1) * sx, jj * sy, h[cy, cx1]], -1)
+    p11 = np.stack([(ii + 1) * sx, (jj + 1) * sy, h[cy1, cx1]], -1)
+    p01 = np.stack([ii * sx, (jj + 1) * sy, h[cy1, cx]], -1)
+    best, normal = np.inf, None
+    for a, b, c in [(p00, p10, p11), (p00, p11, p01)]:
+        e1, e2 = b - a, c - a
+        pv = np.cross(d, e2)
+        det = np.einsum("ij,ij->i", e1, pv)
+        ok = np.abs(det) > 1e-300
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        tv = o - a
+        u = np.einsum("ij,ij->i", tv, pv) * inv
+        q = np.cross(tv, e1)
+        v = (q @ d) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-12)
+        if hit.any():
+            k = np.flatnonzero(hit)[np.argmin(t[hit])]
+            if t[k] < best:
+                n = np.cross(e1[k], e2[k])
+                best, normal = t[k], n / np.linalg.norm(n) * np.sign(n[2])
+    return best, normal
+
+
+@pytest.mark.parametrize("shape", [(16, 16), (6, 10)])
+def test_pyramid_walk_finds_the_first_triangle(shape, rng):
+    # reference: brute force over every triangle under the ray (_brute_first_hit); rays from
+    # above (down to 1 degree above the horizon) and rays leaving the surface upwards and
+    # sideways, as after a bounce. The walk's start level, climbing rule and node masks
+    # (power-of-two grid, and the modulo of a 6 x 10 one) must never skip the first hit.
+    from project.microgeometry import Heightfield
+    from project.microgeometry._paths import _ESCAPED, _HIT, _intersect
+
+    hf = Heightfield(rng.normal(0.0, 0.6, shape), (0.7, 0.9))
+    h, (sx, sy) = hf.heights, hf.spacing
+    ny, nx = h.shape
+    hmin, hmax = float(h.min()), float(h.max())
+    hits = 0
+    for k in range(400):
+        if k % 2 == 0:  # from above, aimed at a uniform point of the period
+            z = -np.sin(rng.uniform(np.radians(1.0), np.pi / 2))
+            phi = rng.uniform(0, 2 * np.pi)
+            d = np.array([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
+            target = np.array([rng.uniform(0, nx * sx), rng.uniform(0, ny * sy), hmax])
+            o = target - d * (1e-3 / -d[2])
+        else:  # from just above a surface point, upwards (0.5 to 90 degrees)
+            x, y = rng.uniform(0, nx * sx), rng.uniform(0, ny * sy)
+            t0, _ = _brute_first_hit(h, sx, sy, np.array([x, y, hmax + 1.0]),
+                                     np.array([0.0, 0.0, -1.0]))
+            o = np.array([x, y, hmax + 1.0 - t0 + 1e-6])
+            z = np.sin(rng.uniform(np.radians(0.5), np.pi / 2))
+            phi = rng.uniform(0, 2 * np.pi)
+            d = np.array([np.sqrt(1 - z * z) * np.cos(phi), np.sqrt(1 - z * z) * np.sin(phi), z])
+        t_ref, n_ref = _brute_first_hit(h, sx, sy, o, d)
+        status, t, gx, gy, gz = _intersect(*o, *d, h, hf._pyramid, hf._offsets, hf._levels,
+                                           sx, sy, hmin, hmax, 10**6)
+        if np.isinf(t_ref):
+            assert status == _ESCAPED, (k, o, d, t)
+        else:
+            hits += 1
+            assert status == _HIT, (k, o, d, t_ref)
+            # rounding of the two formulations of the same intersection
+            assert t == pytest.approx(t_ref, rel=1e-9, abs=1e-9), (k, o, d)
+            np.testing.assert_allclose([gx, gy, gz], n_ref, atol=1e-9)
+    assert 250 < hits < 400  # both outcomes were exercised
