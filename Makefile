@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 # read-only, under the user's cache folder): no NUMBA_CACHE_DIR here, so `make demo`, the
 # console script, python -m and notebooks all share one cache
 
-.PHONY: demo test bench lint clean
+.PHONY: demo test bench lint clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -38,5 +38,11 @@ bench: $(VENV)/.installed-test
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check basis project compress tests
 
-clean:
-	rm -rf $(VENV) .numba_cache .pytest_cache scatmodes-out
+# numba's caches: a cached kernel is checked against its own file only, not against the
+# kernels it inlines from other files, so remove them after editing a shared kernel module
+clean-cache:
+	rm -rf .numba_cache
+	find basis project compress -path '*/__pycache__/*' \( -name '*.nbi' -o -name '*.nbc' \) -delete
+
+clean: clean-cache
+	rm -rf $(VENV) .pytest_cache scatmodes-out

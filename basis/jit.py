@@ -1,6 +1,12 @@
 """The numba decorators every kernel of scatmodes uses, so all are compiled and cached alike.
 
 Public so that ``project`` and ``compress`` (and extensions) share one configuration.
+
+Caching and editing the source: numba checks a cached kernel against the file that defines
+it, not against the files of the kernels it calls (and inlines). After editing a module whose
+kernels others call (``project/microgeometry/_paths.py`` under every tracer, for instance),
+remove the caches (``make clean-cache``), or the callers keep running the old code. Installed
+packages are not affected: installing a version rewrites every file.
 """
 
 from functools import partial
