@@ -567,6 +567,28 @@ def test_pole_and_horizon_directions(make):
     np.testing.assert_allclose(y[3], y[0], rtol=0, atol=1e-15)
 
 
+
+@pytest.mark.parametrize("make", BASES)
+@pytest.mark.parametrize("lmax", [3, 11, 12, 25])
+def test_fast_kernels_give_the_reference_bits(make, lmax, unit_vectors):
+    # The pair kernel (full basis, lmax < 12) and the lane kernel (8 directions per block)
+    # promise the bits of _sh_point, the per-direction routine with the carried exponent: same
+    # operations in the same order. 37 directions: full blocks, a partial one, and a block
+    # with sin(theta) below the seed floor (it falls back to _sh_point as a whole).
+    from basis._base import triangular_offsets
+    from basis.sh import _PARITY_CODE, _sh_point
+
+    b = make(lmax)
+    d = unit_vectors(37, upper=True)
+    d[9] = [0.0, 0.0, 1.0]
+    d[10] = [1e-300, 0.0, 1.0]  # 0 < sin(theta) < the seed floor
+    d[11] = [1.0, 0.0, 0.0]
+    ref = np.empty((37, b.size))
+    off = triangular_offsets(lmax)
+    for i in range(37):
+        _sh_point(d, i, lmax, _PARITY_CODE[b._parity], b._norm, b._a, b._b, b._d, off, ref[i])
+    np.testing.assert_array_equal(b.eval(d), ref)  # bitwise: no tolerance
+
 # -- input validation -------------------------------------------------------------------------
 
 CONSTRUCTORS = [
