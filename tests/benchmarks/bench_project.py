@@ -25,10 +25,19 @@ Cases (the targets of issue 3, on the 2-core machine):
    converges like N^-2): target < 5 s. The file is made by ../shared/tools/merl_surrogate.py
    in a temporary folder; the case is skipped when ../shared is absent.
 
+Then one row for a sharp measured material (issue 13): blue-acrylic (a specular ridge about
+0.003 wide in z_i - z_o) to HemiZernike(24) at tolerance 1e-4, skipped like case 3. It prints
+our time, nodes and rule, the error against an independent brute-force reference, and the
+same for the old method (the tensor Gauss rule in (z_i, z_o) only, folded onto z_i <= z_o as
+if the table were mirror symmetric, as before issue 13). The
+reference resolves the ridge by brute force: Gauss in z_i (``--ref-nodes``) against a fine
+Gauss rule in z_o (``--ref-fine``) so no pair sits exactly on z_i = z_o, 400 graded azimuths.
+
 Each case is run once untimed first (numba compilation and caches), then ``--repeats`` times;
 the best time is reported.
 
-Run: ``python tests/benchmarks/bench_project.py [--repeats 3] [--rows 8] [--quick]``.
+Run: ``python tests/benchmarks/bench_project.py [--repeats 3] [--rows 8] [--quick]
+[--no-sharp]``.
 """
 
 from __future__ import annotations
@@ -56,6 +65,9 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--rows", type=int, default=8,
                    help="incident nodes the dense baseline is timed on (then scaled)")
     p.add_argument("--quick", action="store_true", help="lower orders, one repeat")
+    p.add_argument("--no-sharp", action="store_true", help="skip the blue-acrylic row")
+    p.add_argument("--ref-nodes", type=int, default=104, help="reference: Gauss nodes in z_i")
+    p.add_argument("--ref-fine", type=int, default=2000, help="reference: Gauss nodes in z_o")
     args = p.parse_args(argv)
     if args.repeats < 1 or args.rows < 1:
         p.error("--repeats and --rows must be >= 1")
@@ -93,11 +105,92 @@ def dense_baseline(brdf, basis, quantity, nodes, rows, repeats) -> float:
     return t * n / take.size
 
 
-def merl_file(folder: str) -> Path | None:
+def fine_reference(brdf, basis, n_i: int, n_o: int, nphi: int = 400) -> list[np.ndarray]:
+    """Isotropic blocks (k_m, k_m, channels) by brute force, for the sharp row.
+
+    Gauss n_i in z_i against Gauss n_o >> n_i in z_o: every row resolves the ridge at
+    z_o = z_i with many nodes, and the row integrals are smooth in z_i. The azimuth rule is
+    the graded one of the projection (converged to ~1e-5 there at 400).
+    """
+    from project.quadrature import _azimuth_nodes, _gauss_z
+
+    zi, wi = _gauss_z(n_i)
+    zo, wo = _gauss_z(n_o)
+    dphi, wphi = _azimuth_nodes(nphi, 6)
+    az, ch = basis.azimuthal, int(brdf.channels)
+    cosm = 2.0 * wphi[:, None] * np.cos(np.outer(dphi, np.arange(basis.order + 1)))
+    pi, po = basis.radial(zi) * wi[:, None], basis.radial(zo) * wo[:, None]
+    so = np.sqrt(1.0 - zo**2)
+    out = np.stack([so[:, None] * np.cos(dphi), -so[:, None] * np.sin(dphi),
+                    np.repeat(zo[:, None], dphi.size, 1)], axis=-1).reshape(-1, 3)
+    rows = [np.zeros((n_i, int(np.sum(az == m)), ch)) for m in range(basis.order + 1)]
+    for a in range(n_i):  # one incident node at a time: n_o x nphi / 2 pairs
+        inc = np.broadcast_to([np.sqrt(1.0 - zi[a] ** 2), 0.0, zi[a]], out.shape)
+        q = np.asarray(brdf.eval(inc, out)).reshape(n_o, dphi.size, ch)
+        f = np.einsum("bsc,sm->bmc", q, cosm)
+        for m in range(basis.order + 1):
+            rows[m][a] = np.einsum("bc,bk->kc", f[:, m], po[:, az == m])
+    blocks = []
+    for m in range(basis.order + 1):
+        b = (2.0 * np.pi if m == 0 else np.pi) * np.einsum("aj,akc->jkc", pi[:, az == m],
+                                                           rows[m])
+        blocks.append(0.5 * (b + b.swapaxes(0, 1)))
+    return blocks
+
+
+def block_error(cm, blocks) -> float:
+    """max |M - reference| / max |reference| over the isotropic blocks."""
+    got = [np.moveaxis(b, 0, -1) for b in cm.stored]
+    err = max(float(np.max(np.abs(g - r))) for g, r in zip(got, blocks, strict=True))
+    return err / max(float(np.max(np.abs(r))) for r in blocks)
+
+
+def sharp_row(path: Path, args: argparse.Namespace, reps: int) -> None:
+    """The blue-acrylic row: ours, the old tensor rule, both against the brute force."""
+    from project import quadrature
+
+    brdf, zb = read_merl(path), HemiZernike(24)
+    t0 = time.perf_counter()
+    ref = fine_reference(brdf, zb, args.ref_nodes, args.ref_fine)
+    t_ref = time.perf_counter() - t0
+
+    def run():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return project(brdf, zb, tol=1e-4)
+
+    def old():  # the rule before issue 13: tensor Gauss only, folded as if mirror symmetric
+        saved = quadrature.ISO_ZMAPS, quadrature._mirror_symmetric
+        quadrature.ISO_ZMAPS, quadrature._mirror_symmetric = ("gauss",), lambda brdf: True
+        try:
+            return run()
+        finally:
+            quadrature.ISO_ZMAPS, quadrature._mirror_symmetric = saved
+
+    best = {"ours": np.inf, "old": np.inf}
+    out = {}
+    for _ in range(reps):  # interleaved: the machine's load hits both alike
+        for name, fn in (("ours", run), ("old", old)):
+            t0 = time.perf_counter()
+            out[name] = fn()
+            best[name] = min(best[name], time.perf_counter() - t0)
+    print(f"\nSharp measured material: blue-acrylic to {zb!r}, tol 1e-4; reference "
+          f"{args.ref_nodes} x {args.ref_fine} Gauss x 400 azimuths ({t_ref:.0f} s)")
+    print("| method | s | nodes (z, phi) | z rule | rel. error est. | error vs reference | "
+          "evaluations |")
+    print("|---" * 7 + "|")
+    for name in ("ours", "old"):
+        info = out[name].info
+        print(f"| {name} | {best[name]:.2f} | {info['nodes']} | {info.get('z_rule', '-')} | "
+              f"{info['rel_error']:.1e}{'' if info['converged'] else ' (not met)'} | "
+              f"{block_error(out[name], ref):.1e} | {info['evaluations']:,} |", flush=True)
+    print(f"old / ours: {best['old'] / best['ours']:.3g}")
+
+
+def merl_file(folder: str, name: str = "gold-metallic-paint") -> Path | None:
     tool = SHARED / "tools" / "merl_surrogate.py"
     if not tool.is_file():
         return None
-    name = "gold-metallic-paint"
     subprocess.run([sys.executable, str(tool), name, "-o", folder], check=True,
                    capture_output=True)
     return Path(folder) / f"{name}.binary"
@@ -129,10 +222,16 @@ def main(argv: list[str] | None = None) -> int:
                 warnings.simplefilter("ignore", RuntimeWarning)  # truncation notes, shown below
                 t, cm = best_of(lambda b=brdf, z=zb, tl=tol: project(b, z, tol=tl), reps)
             info = cm.info
-            dense = dense_baseline(brdf, zb, "f_cos", info["nodes"], args.rows, 1)
+            dense = dense_baseline(brdf, zb, info["quantity"], info["nodes"], args.rows, 1)
             print(f"| {label} | {zb!r} | {t:.3f} | {target:g} | {info['nodes']} | "
                   f"{info['rel_error']:.1e}{'' if info['converged'] else ' (not met)'} | "
                   f"{info['evaluations']:,} | {dense:.3g} | {dense / t:.3g} |", flush=True)
+        if not args.no_sharp and not args.quick:
+            sharp = merl_file(tmp, "blue-acrylic")
+            if sharp is None:
+                print(f"(sharp MERL row skipped: {SHARED} not found)")
+            else:
+                sharp_row(sharp, args, reps)
     return 0
 
 

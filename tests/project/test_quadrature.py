@@ -286,6 +286,53 @@ def test_reciprocal_half_grid_equals_full_grid():
                                                           rel=0, abs=1e-8)
 
 
+class Twisted(BRDF):
+    """(1 + (z_i - z_o) (w_i x w_o)_z / 2) / pi: isotropic and reciprocal (swapping the two
+    directions flips both factors) but odd under the mirror y -> -y, like measured tables
+    that are not bilaterally symmetric. Its even part in dphi is Lambert's 1 / pi."""
+
+    isotropic = True
+
+    def _eval(self, wi, wo):
+        cross = wi[:, 0] * wo[:, 1] - wi[:, 1] * wo[:, 0]
+        return ((1.0 + 0.5 * (wi[:, 2] - wo[:, 2]) * cross) / np.pi)[:, None]
+
+
+def test_mirror_asymmetric_isotropic_brdf_projects_its_even_part():
+    # the isotropic blocks hold cos(m dphi) terms only: the projection is that of the even
+    # part, Lambert with albedo 1, whose only coefficient is 2 on b_0 b_0 (see
+    # test_lambert_is_one_coefficient); the odd part integrates to exactly 0 against every
+    # product of blocks, so any leak of it is an error
+    zb = HemiZernike(6)
+    cm = project(Twisted(), zb, quantity="f")
+    want = np.zeros((zb.size, zb.size))
+    want[0, 0] = 2.0
+    # polynomial in the components: both triangles' rules are exact; rounding ~1e-14
+    np.testing.assert_allclose(cm.matrix, want, rtol=0, atol=1e-13)
+    # folding z_i >= z_o onto z_i <= z_o (right only for even BRDFs) leaks the odd part
+    from project.quadrature import _iso_rule
+
+    folded = _iso_rule(Twisted(), zb, "f", 12, 24, fold=True)[0]
+    leak = max(np.max(np.abs(b[..., 0] - b[..., 0].T) + np.abs(b[..., 0])) for b in folded[1:])
+    assert leak > 1e-3
+
+
+@pytest.mark.parametrize("brdf", [Poly(0.0), Twisted()], ids=["even", "twisted"])
+def test_diagonal_rule_matches_tensor_rule(brdf):
+    # the diagonal rule in (s, d) is exact for polynomials once its n / 2 nodes per panel
+    # cover the degree (d = D(s) tau^3 triples it); the tensor Gauss rule is exact too
+    from project.quadrature import _iso_rule
+
+    zb = HemiZernike(5)
+    fold = isinstance(brdf, Poly)
+    ref = _iso_rule(brdf, zb, "f", 16, 24, fold=fold)[0]
+    got = _iso_rule(brdf, zb, "f", 48, 24, zmap="diagonal", fold=fold)[0]
+    scale = max(np.max(np.abs(b)) for b in ref)
+    for g, r in zip(got, ref, strict=True):  # blocks: sums of ~1e3 terms, rounding 1e-14
+        np.testing.assert_allclose(0.5 * (g + g.swapaxes(0, 1)), 0.5 * (r + r.swapaxes(0, 1)),
+                                   rtol=0, atol=1e-13 * scale)
+
+
 @pytest.mark.parametrize("kwargs, exc, match", [
     (dict(quantity="g"), ValueError, r"quantity must be one of 'auto', 'f_cos', 'f', got 'g'"),
     (dict(method="mc"), ValueError, r"method must be one of"),
