@@ -34,6 +34,7 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python tests/benchmarks/bench_project.py
 	$(BIN)/python tests/benchmarks/bench_simulate.py
 	$(BIN)/python tests/benchmarks/bench_compress.py
+	$(BIN)/python tests/benchmarks/bench_distributed.py
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check basis project compress tests
