@@ -705,7 +705,7 @@ def _accumulate_kernel(bu, c, bv, w, per, sums, m):
     # every m[j, k] adds the directions' terms one by one in increasing d, whatever the
     # thread count or CPU. A task holds four rows of m in a local block and takes four
     # directions per pass over k, so each pass loads and stores the block once for sixteen
-    # multiply-adds: 2.2x faster than one row and one direction per pass (same bits), and
+    # multiply-adds: about 2x faster than one row and one direction per pass (same bits), and
     # within 2.4x of OpenBLAS's dgemm on one thread at K = 91.
     nd, kk = bu.shape
     for d in prange(nd):
