@@ -270,9 +270,20 @@ def _max_pyramid(h: NDArray[np.float64]) -> tuple[NDArray, NDArray, int]:
     Level 0 holds, per cell (i, j), the max of its four corners (periodic); level L + 1 the
     max over 2 x 2 nodes of level L, while both dimensions stay even. Returns the flat
     values, the offset of each level (plus the end) and the number of levels above 0.
+
+    The values are float32, each the smallest float32 at or above its float64 maximum: a
+    node may only look higher than it is, which makes the walk descend a little more often
+    but never skip a facet (the facets themselves are intersected in float64), so the paths
+    are the same bits; half the bytes keep more of the pyramid in cache (the tracer runs
+    1.2-1.3x faster on a 512 x 512 field).
     """
-    c = np.maximum(np.maximum(h, np.roll(h, -1, 0)),
-                   np.maximum(np.roll(h, -1, 1), np.roll(np.roll(h, -1, 0), -1, 1)))
+    cell = np.maximum(np.maximum(h, np.roll(h, -1, 0)),
+                      np.maximum(np.roll(h, -1, 1), np.roll(np.roll(h, -1, 0), -1, 1)))
+    c = cell.astype(np.float32)
+    low = c < cell  # compared in float64
+    c[low] = np.nextafter(c[low], np.float32(np.inf))
+    del cell, low
+    # rounding up is monotone, so the max of rounded-up values is the rounded-up max
     levels = [c]
     while c.shape[0] % 2 == 0 and c.shape[1] % 2 == 0 and min(c.shape) > 1:
         c = np.maximum(np.maximum(c[0::2, 0::2], c[1::2, 0::2]),

@@ -43,8 +43,16 @@ def test_pyramid_is_max_of_cells(rng):
     pyr, offs = hf._pyramid, hf._offsets
     h = hf.heights
     cell = np.max([h, np.roll(h, -1, 0), np.roll(h, -1, 1), np.roll(h, (-1, -1), (0, 1))], 0)
-    assert np.array_equal(pyr[:offs[1]].reshape(8, 16), cell)
-    assert pyr[offs[3]:offs[4]].tolist() == [cell[:, :8].max(), cell[:, 8:].max()]
+    # stored in float32, rounded up: each node is the smallest float32 >= its true max
+    assert pyr.dtype == np.float32
+
+    def smallest_float32_above(stored, exact):
+        below = np.nextafter(stored, np.float32(-np.inf)).astype(np.float64)
+        return np.all(stored.astype(np.float64) >= exact) and np.all(below < exact)
+
+    assert smallest_float32_above(pyr[:offs[1]].reshape(8, 16), cell)
+    assert smallest_float32_above(pyr[offs[3]:offs[4]],
+                                  np.array([cell[:, :8].max(), cell[:, 8:].max()]))
 
 
 def test_levels_is_a_read_only_count():
