@@ -28,8 +28,9 @@ directions, ``--targets`` rays per direction at uniform points of the period). R
 casts = first-hit queries (ours: one per facet event plus the final miss of each path,
 about 2.04 per incident ray; Mitsuba's mirror loop: the same count of its queries);
 ratio = casts/s / the casts/s of ``mitsuba 1 batch`` (> 1: we are faster). Each row is
-run once untimed (JIT compile or cache load, BVH build) and then ``--repeats`` times; the best
-time is reported. Both run on ``--threads`` threads (numba.set_num_threads and
+run once untimed (JIT compile or cache load, BVH build) and then ``--repeats`` times (our
+height-field rows and ``mitsuba 1 batch``: ``--repeats`` + 2 times); the best time is
+reported. Both run on ``--threads`` threads (numba.set_num_threads and
 ``dr.set_thread_count``). The machine may be shared: compare rows of one
 run. Finally it prints the time our simulate needs to reach Q <= ``--qtarget`` at
 HemiZernike(12) (rays doubled from 2^16 until Q meets the target).
@@ -415,11 +416,12 @@ def heightfield_rows(args: argparse.Namespace) -> None:
     def ours_sim():
         sim["r"] = simulate(surface, basis, rays=rays, seed=1, targets=args.targets)
 
-    res["ours simulate"] = best(ours_sim, args.repeats)
+    # our rows and Mitsuba's one-batch row: the best of repeats + 2 runs each
+    res["ours simulate"] = best(ours_sim, args.repeats + 2)
     dirs = incident_directions(ndirs, np.uint64(1), 0, True)
     out = _alloc(rays)
     res["ours trace"] = best(lambda: _run(surface, dirs, args.targets, np.uint64(1), 0, out),
-                             args.repeats)
+                             args.repeats + 2)
     bounces_ours = float(np.mean(out[2]))
     try:
         run = mitsuba_runner(surface, dirs, args.targets, 1, args.threads)
