@@ -271,18 +271,7 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
                 up = True
             if ty <= tx and ((iy & 1) == 1 if dy > 0.0 else (iy & 1) == 0):
                 up = True
-            t = t1
-            if up and lev < top:
-                lev += 1
-                wx *= 2.0
-                wy *= 2.0
-                iwx *= 0.5
-                iwy *= 0.5
-                wl >>= 1
-                hl >>= 1
-                off = offs[lev]
-            continue
-        if lev > 0:
+        elif lev > 0:
             lev -= 1
             wx *= 0.5
             wy *= 0.5
@@ -292,11 +281,14 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
             hl <<= 1
             off = offs[lev]
             continue
-        hit, th, gx, gy, gz = _cell(ix, iy, cx, cy, t, t1, ox, oy, oz, dx, dy, dz, h, sx, sy)
-        if hit:
-            return _HIT, th, gx, gy, gz
+        else:
+            hit, th, gx, gy, gz = _cell(ix, iy, cx, cy, t, t1, ox, oy, oz, dx, dy, dz, h, sx,
+                                        sy)
+            if hit:
+                return _HIT, th, gx, gy, gz
+            up = True  # a cell the ray crossed without a hit
         t = t1
-        if lev < top:
+        if up and lev < top:
             lev += 1
             wx *= 2.0
             wy *= 2.0

@@ -51,17 +51,7 @@ import basis  # noqa: E402
 import compress  # noqa: E402
 import project  # noqa: E402
 from project.measured import MERLBRDF, _merl_lookup_kernel, merl_grid, read_merl  # noqa: E402
-
-
-def _pairs(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    out = []
-    for _ in range(2):
-        z = rng.uniform(0.0, 1.0, n)
-        phi = rng.uniform(0.0, 2 * np.pi, n)
-        s = np.sqrt(1 - z * z)
-        out.append(np.ascontiguousarray(np.stack([s * np.cos(phi), s * np.sin(phi), z], -1)))
-    return out[0], out[1]
+from tests.benchmarks.bench_eval import pairs  # noqa: E402 - the same test pairs
 
 
 def _table(material: str | None, tmp: str) -> MERLBRDF:
@@ -96,7 +86,7 @@ def main(argv: list[str] | None = None) -> int:
         a.pairs, a.orders, a.repeats, a.material = 1 << 18, [4, 8], 3, None
     with tempfile.TemporaryDirectory() as tmp:
         brdf = _table(a.material, tmp)
-    wi, wo = _pairs(a.pairs, 7)
+    wi, wo = pairs(a.pairs, 7)
     print(f"bench_compress: {a.pairs} pairs, numba threads {numba.get_num_threads()}, "
           f"load average {os.getloadavg()[0]:.2f}, table {brdf.name}")
     runs: dict[str, tuple] = {}
