@@ -7,7 +7,7 @@ when ``../shared`` is present; otherwise a synthetic table sampled from an analy
 the wall time of evaluating the BRDF at the same ``--pairs`` random direction pairs (seeded,
 uniform in solid angle on H x H), RGB:
 
-- "MERL lookup (trilinear)": ``project.measured._merl_lookup_kernel``, the numba kernel behind
+- "MERL lookup (trilinear)": ``project.measured.merl._merl_lookup_kernel``, the numba kernel behind
   ``MERLBRDF.eval`` (no validation), parallel over pairs;
 - "MERLBRDF.eval": the public call, with validation;
 - for each order in ``--orders`` (default 4, 8, 16), the projection of the table onto
@@ -50,7 +50,7 @@ sys.path.insert(0, str(ROOT))
 import basis  # noqa: E402
 import compress  # noqa: E402
 import project  # noqa: E402
-from project.measured import MERLBRDF, _merl_lookup_kernel, merl_grid, read_merl  # noqa: E402
+from project.measured.merl import MERLBRDF, _merl_lookup_kernel, merl_grid, read_merl  # noqa: E402
 from tests.benchmarks.bench_eval import pairs  # noqa: E402 - the same test pairs
 
 

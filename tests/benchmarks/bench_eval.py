@@ -11,7 +11,7 @@ What it measures
    solid angle on H x H), one call of
 
    - ``MERLBRDF.eval`` (the peer: trilinear lookup, the public call with validation);
-   - ``project.measured._merl_lookup_kernel``, the lookup kernel alone (no validation);
+   - ``project.measured.merl._merl_lookup_kernel``, the lookup kernel alone (no validation);
    - ``CoefficientMatrix.eval`` (the public call with validation) for each basis;
    - ``Evaluator.eval_flat`` (no validation, preallocated output) for each basis.
 
@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 import basis  # noqa: E402
 import project  # noqa: E402
-from project.measured import MERLBRDF, _merl_lookup_kernel, merl_grid, read_merl  # noqa: E402
+from project.measured.merl import MERLBRDF, _merl_lookup_kernel, merl_grid, read_merl  # noqa: E402
 
 
 def pairs(n: int, seed: int) -> tuple[np.ndarray, np.ndarray]:

@@ -104,8 +104,8 @@ from basis.directions import from_rusinkiewicz
 from basis.jit import pjit, prange
 from basis.validation import choice
 
-from .brdf import BRDF
-from .io import atomic_path
+from ..brdf import BRDF
+from ..io import atomic_path
 
 __all__ = [
     "MERL_BYTES",
