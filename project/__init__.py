@@ -18,6 +18,7 @@ from .brdf import BRDF, MirrorDelta
 from .fitting import FittedModel, fit_model
 from .lstsq import bin_samples, fit, read_table, tessellate_hemisphere
 from .matrix_brdf import MatrixBRDF
+from .measurements import Measurements
 from .quadrature import default_quantity, project, radial_table, tail_fraction, truncation_error
 from .sampling import PairSamples, brdf_errors, peak_resolving_pairs
 
@@ -25,6 +26,7 @@ __all__ = [
     "BRDF",
     "FittedModel",
     "MatrixBRDF",
+    "Measurements",
     "default_quantity",
     "MirrorDelta",
     "PairSamples",

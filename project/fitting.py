@@ -265,7 +265,9 @@ from scipy.special import digamma, gammaln
 from basis.validation import nonneg_int
 
 from .brdf import BRDF
+from .crossval import fold_report, out_of_fold
 from .factored import D_WARPS, WARPS, FactoredLobe, fit_factored
+from .measurements import Measurements
 from .models import CookTorrance
 from .sampling import DEFAULT_WIDTHS, brdf_errors, peak_resolving_pairs
 
@@ -280,6 +282,10 @@ DEFAULTS = {"n": 2 ** 14, "seed": 0, "restarts": 4, "lobes": None, "max_nfev": N
             "error_n": 2 ** 16, "error_seed": None, "widths": DEFAULT_WIDTHS,
             "wavelength": None}
 _LOBES = {"lafortune": 1, "dsbrdf": 3}
+#: Options of :func:`fit_model` for measurements (``folds``: of the cross-validation, 0 to
+#: skip it).
+SAMPLE_DEFAULTS = {"seed": 0, "restarts": 4, "lobes": None, "max_nfev": None,
+                   "wavelength": None, "folds": 10}
 #: Options of :func:`fit_model` for family "factored": those of
 #: :func:`project.factored.fit_factored`, and the error pairs.
 FACTORED_OPTIONS = ("rank", "bins", "warp", "warp_d", "color", "samples", "diffuse", "seed",
@@ -1127,45 +1133,62 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
     if not isinstance(metric, str) or metric not in METRICS:
         raise ValueError(f"metric must be one of {', '.join(map(repr, METRICS))}, got "
                          f"{metric!r}")
+    if isinstance(brdf, Measurements):
+        return _fit_samples(brdf, _check_family(family), metric, options, start)
     if _check_family(family) == "factored":
         return _fit_factored(brdf, metric, options, start)
     opts = _options(family, options)
     if not callable(getattr(brdf, "eval", None)):
-        raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)), got "
-                        f"{type(brdf).__name__}")
+        raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)) or "
+                        f"project.Measurements, got {type(brdf).__name__}")
     if getattr(brdf, "delta", ()):
         warnings.warn(f"{brdf!r} has delta (ideal mirror) terms; fit_model fits only its "
                       "eval() part", UserWarning, stacklevel=2)
     samples = peak_resolving_pairs(opts["n"], seed=opts["seed"], widths=opts["widths"])
     f = _target(brdf, samples)
+    model = _family(family, f.shape[1], opts["lobes"], opts["wavelength"])
+    fitted, report = _fit_parametric(family, model, _Geometry(samples.wi, samples.wo), f,
+                                     samples.weights, metric, opts)
+    err = brdf_errors(brdf, fitted, peak_resolving_pairs(
+        opts["error_n"], seed=opts["error_seed"], widths=opts["widths"]))
+    fitted.info = {
+        **err, **report,
+        "samples": {"fit": samples.description,
+                    "error": f"error_n={opts['error_n']}, error_seed={opts['error_seed']}"},
+        "seconds": time.perf_counter() - start,
+    }
+    return fitted
+
+
+def _fit_parametric(family: str, model, geom: _Geometry, f: NDArray, w: NDArray, metric: str,
+                    opts: dict, stacklevel: int = 3) -> tuple[FittedModel, dict]:
+    """Fit ``model`` to values ``f`` (n, C) at ``geom`` with weights ``w``.
+
+    Every restart is run and the best kept. Returns the model and the report of the fit
+    (what ``info`` holds); warns at ``stacklevel`` (0: not) when the fit did not converge.
+    """
     c = f.shape[1]
-    model = _family(family, c, opts["lobes"], opts["wavelength"])
-    geom = _Geometry(samples.wi, samples.wo)
     lo, hi = model.bounds
     runs = []
     for k in range(opts["restarts"]):
         rng = np.random.default_rng(np.random.SeedSequence([opts["seed"], k]))
-        runs.append(_solve(model, geom, f, samples.weights, metric, k, rng, opts["max_nfev"]))
+        runs.append(_solve(model, geom, f, w, metric, k, rng, opts["max_nfev"]))
     costs = [float(r.cost) for r in runs]
     best = int(np.argmin(costs))
     run = runs[best]
     r2 = (run.fun.reshape(geom.n, c) ** 2).sum(axis=0)
     fit_err = float(np.sqrt(r2.max()))  # per-channel relative l2 (or log RMS) on the fit pairs
     converged = bool(run.status > 0)
-    if not converged:
+    if not converged and stacklevel:
         why = (f"every one of the {opts['restarts']} restarts stopped" if
                all(r.status == 0 for r in runs) else "the best restart stopped")
         warnings.warn(f"fit_model({family!r}, metric={metric!r}) did not converge: {why} at "
                       f"max_nfev={opts['max_nfev']}; best {metric} error reached on the "
                       f"fitting pairs {fit_err:.4g} (raise max_nfev or restarts)",
-                      RuntimeWarning, stacklevel=2)
+                      RuntimeWarning, stacklevel=stacklevel)
     x = np.clip(run.x, lo, hi)
     cov = _covariance(run.jac, run.fun, model.p)
-    fitted = FittedModel(family, model.params(x))
-    err = brdf_errors(brdf, fitted, peak_resolving_pairs(
-        opts["error_n"], seed=opts["error_seed"], widths=opts["widths"]))
-    fitted.info = {
-        **err,
+    report = {
         f"fit_{metric}": fit_err,
         "iterations": int(run.njev or 0),
         "nfev": [int(r.nfev) for r in runs],
@@ -1176,10 +1199,60 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         "converged": converged,
         "param_stderr": model.natural_stderr(x, cov),
         "metric": metric,
-        "samples": {"fit": samples.description,
-                    "error": f"error_n={opts['error_n']}, error_seed={opts['error_seed']}"},
-        "seconds": time.perf_counter() - start,
     }
+    return FittedModel(family, model.params(x)), report
+
+
+def _fit_samples(meas: Measurements, family: str, metric: str, options: dict,
+                 start: float) -> FittedModel:
+    """fit_model(measurements, family): a weighted fit to the samples, cross-validated."""
+    if family == "factored":
+        raise ValueError(
+            "family 'factored' tabulates a BRDF on a dense rule in the half/difference angles "
+            "and needs a BRDF that can be evaluated anywhere; scattered samples do not cover "
+            f"its tables. Fit a parametric family to {meas!r} ('lambert+ggx', "
+            "'lambert+beckmann', 'lafortune', 'dsbrdf', 'rr8807'), or compare them with "
+            "compress.select(measurements, tol)")
+    unknown = sorted(set(options) - set(SAMPLE_DEFAULTS))
+    if unknown:
+        hint = (" (the samples are the measurements: n, error_n, error_seed and widths "
+                "choose pairs of a BRDF)" if set(unknown) & set(DEFAULTS) else "")
+        raise TypeError(f"fit_model() got unknown option(s) {', '.join(map(repr, unknown))} "
+                        f"for measurements{hint}; the options are "
+                        f"{', '.join(map(repr, SAMPLE_DEFAULTS))}")
+    opts = _options(family, {k: v for k, v in options.items() if k != "folds"})
+    k = nonneg_int(options.get("folds", SAMPLE_DEFAULTS["folds"]), "folds")
+    if k == 1:
+        raise ValueError("folds must be 0 (no cross-validation) or >= 2, got 1")
+    wavelength = opts["wavelength"]
+    if family == "rr8807" and wavelength is None and meas.wavelengths is not None:
+        wavelength = meas.wavelengths / 1000.0  # nm -> um
+    model = _family(family, meas.channels, opts["lobes"], wavelength)
+    fit_values = meas.values
+    if metric == "log" and np.any(fit_values * meas.wi[:, 2:3] <= -1.0):
+        raise ValueError("the log metric needs f cos(theta_i) > -1 at every sample; "
+                         f"{meas!r} has values below that")
+
+    def fit_on(m: Measurements, stacklevel: int = 0) -> tuple[FittedModel, dict]:
+        return _fit_parametric(family, model, _Geometry(m.wi, m.wo), m.values, m.weights,
+                               metric, opts, stacklevel=stacklevel)
+
+    fitted, report = fit_on(meas, stacklevel=4)
+    info: dict = {"l2": None, "l2_stderr": None, "log": None, "log_stderr": None}
+    if k:
+        folds = meas.folds(k, seed=opts["seed"], by="pairs")
+        if np.unique(folds).size >= 2:
+            (pred,) = out_of_fold(meas, lambda m: fit_on(m)[0], folds)
+            info = fold_report(meas, pred, folds, "pairs", start)
+            info.pop("seconds")
+    fitted.info = {**info, **report, "samples": {"fit": repr(meas), "count": len(meas)},
+                   "seconds": time.perf_counter() - start}
+    if info["l2"] is not None and info["l2"] >= 1.0:
+        warnings.warn(f"fit_model({family!r}) predicts the held-out samples of {meas!r} no "
+                      f"better than zero: cross-validated l2 error {info['l2']:.3g} >= 1. "
+                      "The family cannot follow these data; compare the families (and "
+                      "expansions) with compress.select(measurements, tol)", RuntimeWarning,
+                      stacklevel=3)
     return fitted
 
 

@@ -1,7 +1,10 @@
-"""``scatmodes info FILE``: what a saved representation or a simulation checkpoint holds.
+"""``scatmodes info FILE``: what a saved representation, checkpoint or measurement file holds.
 
 :func:`describe` returns a JSON-able dict, :func:`to_text` its human-readable form, and
-:func:`run` prints one of them. A representation (a file of :func:`compress.save`: a
+:func:`run` prints one of them. Measurement files (a text table, CSV or a Cornell ``.brdf``
+file, see :func:`project.measured.read_measurements`) are described by
+:meth:`project.Measurements.describe`, RGL-EPFL ``.bsdf`` files by the header of
+:func:`project.measured.read_rgl`. A representation (a file of :func:`compress.save`: a
 coefficient matrix, a fitted model or a hybrid) is read in full with :func:`compress.load`,
 so every check of :mod:`compress.store` applies and a damaged file is reported, not
 described. A checkpoint of :func:`project.microgeometry.simulate` (``--checkpoint``) is
@@ -22,6 +25,7 @@ __all__ = ["describe", "run", "to_text"]
 
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _CHECKPOINT = "scatmodes-microgeometry-checkpoint-"
+_TENSOR_MAGIC = b"tensor_file\x00"  # RGL-EPFL .bsdf files (project.measured.rgl)
 
 
 class _Damaged(ValueError):
@@ -44,7 +48,7 @@ def run(path: str | os.PathLike, *, as_json: bool = False) -> int:
 
 
 def describe(path: str | os.PathLike) -> dict[str, Any]:
-    """Describe a file of :func:`compress.save` or a simulation checkpoint.
+    """Describe a file of :func:`compress.save`, a simulation checkpoint or measurements.
 
     Parameters
     ----------
@@ -53,7 +57,8 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
     Returns
     -------
     dict
-        JSON-able. Always ``path``, ``kind`` (``"representation"`` or ``"checkpoint"``) and
+        JSON-able. Always ``path``, ``kind`` (``"representation"``, ``"checkpoint"``,
+        ``"measurements"`` or ``"rgl"``) and
         ``bytes_on_disk``. A representation adds ``content`` (``"coefficients"``, ``"model"``
         or ``"hybrid"``), ``schema_version``, ``library``, ``dtype``, ``stored_bytes`` (the
         numbers held, at the stored precision) and the description of the object: for a
@@ -65,7 +70,12 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         ``format``, ``directions_done``, ``rays``, ``chunks``, ``seconds``, ``basis``,
         ``matrix_size``, ``surface``, ``incident``, ``targets``, ``chunk``, ``seeds``,
         ``energy`` (reflected, absorbed, lost) and ``sha256`` (whether the checkpoint carries
-        a SHA-256 checksum of its content).
+        a SHA-256 checksum of its content). A measurement file (any file that is neither
+        HDF5 nor an RGL tensor file) has kind ``"measurements"`` and the keys of
+        :meth:`project.Measurements.describe` (its ``info`` holds the format and how it was
+        detected); an RGL ``.bsdf`` file kind ``"rgl"``, with ``name``, ``description``,
+        ``channels``, ``channel_names``, ``wavelengths_nm``, ``isotropic``, ``jacobian``,
+        ``reduction``, ``theta_i_nodes`` and ``phi_i_nodes``.
     """
     p = Path(os.fspath(path))
     if not p.exists():
@@ -73,16 +83,52 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
     if p.is_dir():
         raise IsADirectoryError(f"FILE must be a file, got the directory {str(p)!r}")
     with open(p, "rb") as fh:
-        head = fh.read(8)
+        head = fh.read(len(_TENSOR_MAGIC))
     base = {"path": str(p), "bytes_on_disk": p.stat().st_size}
-    if head == _HDF5_SIGNATURE:
+    if head[:len(_HDF5_SIGNATURE)] == _HDF5_SIGNATURE:
         fmt = _format(p)
         if isinstance(fmt, str) and fmt.startswith(_CHECKPOINT):
             return {**base, "kind": "checkpoint", **_checkpoint(p, fmt)}
-    from compress import load
+        from compress import load
 
-    obj = load(p)  # every check of compress.store; raises ValueError on anything else
-    return {**base, "kind": "representation", **_header(p), **_object(obj)}
+        obj = load(p)  # every check of compress.store; raises ValueError on anything else
+        return {**base, "kind": "representation", **_header(p), **_object(obj)}
+    if head == _TENSOR_MAGIC:
+        return {**base, "kind": "rgl", **_rgl(p)}
+    return {**base, "kind": "measurements", **_measurements(p)}
+
+
+# -- measurements -----------------------------------------------------------------------------
+def _measurements(p: Path) -> dict[str, Any]:
+    from project.measured import read_measurements
+
+    try:
+        meas = read_measurements(p)
+    except ValueError as exc:
+        raise ValueError(f"{str(p)!r} is not an HDF5 file (no HDF5 signature in its first "
+                         f"bytes) and cannot be read as measurements: {exc}") from None
+    return _plain(meas.describe())
+
+
+def _rgl(p: Path) -> dict[str, Any]:
+    try:
+        from project.measured import read_rgl
+    except ImportError:  # pragma: no cover - the RGL reader is part of project.measured
+        raise ValueError(f"{str(p)!r} is an RGL tensor file, which this installation cannot "
+                         "read") from None
+    brdf = read_rgl(p)
+    wl = getattr(brdf, "wavelengths", None)
+    fields = getattr(brdf, "fields", {})
+    return _plain({
+        "name": brdf.name, "description": getattr(brdf, "description", ""),
+        "channels": int(brdf.channels),
+        "channel_names": list(getattr(brdf, "channel_names", ())),
+        "wavelengths_nm": None if wl is None else [float(wl[0]), float(wl[-1])],
+        "isotropic": bool(brdf.isotropic), "jacobian": bool(getattr(brdf, "jacobian", False)),
+        "reduction": int(getattr(brdf, "reduction", 1)),
+        "theta_i_nodes": int(np.size(fields.get("theta_i", ()))),
+        "phi_i_nodes": int(np.size(fields.get("phi_i", ()))),
+    })
 
 
 # -- representations --------------------------------------------------------------------------
@@ -212,6 +258,20 @@ def _checkpoint(p: Path, fmt: str) -> dict[str, Any]:
 def to_text(d: dict[str, Any]) -> str:
     """Render a :func:`describe` dict as aligned ``key  value`` lines."""
     lines = []
+    if d["kind"] == "measurements":
+        return "\n".join(_measurement_lines(d))
+    if d["kind"] == "rgl":
+        wl = d["wavelengths_nm"]
+        lines.append(f"{d['path']}: RGL-EPFL measured BRDF (tensor file), "
+                     f"{d['bytes_on_disk']:,} bytes on disk")
+        rows = [("name", d["name"]), ("description", _short(d["description"])),
+                ("channels", f"{d['channels']} ({_short(d['channel_names'])})"
+                 + ("" if wl is None else f", {wl[0]:g}-{wl[1]:g} nm")),
+                ("isotropic", "yes" if d["isotropic"] else
+                 f"no (azimuthal reduction {d['reduction']})"),
+                ("incidence nodes", f"{d['theta_i_nodes']} theta_i x {d['phi_i_nodes']} phi_i"),
+                ("jacobian", "yes" if d["jacobian"] else "no")]
+        return "\n".join(lines + _rows(rows))
     if d["kind"] == "checkpoint":
         lines.append(f"{d['path']}: simulation checkpoint ({d['format']}), "
                      f"{d['bytes_on_disk']:,} bytes on disk")
@@ -243,6 +303,40 @@ def to_text(d: dict[str, Any]) -> str:
     else:
         lines += _rows(_matrix_rows(d))
     return "\n".join(lines)
+
+
+def _measurement_lines(d: dict[str, Any]) -> list[str]:
+    info = d["info"]
+    wl = d["wavelengths_nm"]
+    iso = {True: "yes (as stated)", False: "no (as stated)", None: "not stated"}
+    theta_i = d["theta_i_deg"]
+    rng = d["value_range"]
+    lo = min((r[0] for r in rng), default=float("nan"))
+    hi = max((r[1] for r in rng), default=float("nan"))
+    rows = [("name", d["name"]),
+            ("format", f"{info.get('format')} ({info.get('format_detected')})"),
+            ("samples", f"{d['samples']:,}"),
+            ("channels", f"{d['channels']} ("
+                         + (f"{wl[0]:g}-{wl[1]:g} nm" if wl else _short(d["channel_names"]))
+                         + ")"),
+            ("angles", f"{info.get('angles')} ({info.get('angles_from')})"),
+            ("incidence directions", f"{d['incidence_directions']}; theta_i "
+                                     f"{_short([round(t, 3) for t in theta_i])} deg"),
+            ("theta_o", "none" if d["theta_o_deg"] is None else
+             f"{d['theta_o_deg'][0]:.4g} to {d['theta_o_deg'][1]:.4g} deg"),
+            ("phi_i constant", "yes" if d["phi_i_constant"] else "no"),
+            ("isotropic", iso[d["isotropic"]]),
+            ("duplicate pairs", d["duplicate_pairs"]),
+            ("reciprocal pairs", f"{d['reciprocal_pairs']} "
+                                 f"({d['reciprocal_pairs_isotropic']} up to isotropy)"),
+            ("negative values", f"{d['negative_values']} ({100 * d['negative_fraction']:.3g} %)"),
+            ("values", f"{lo:.6g} to {hi:.6g} 1/sr over all channels"),
+            ("weights", "none" if d["weights"] is None else
+             f"{d['weights'][0]:.6g} to {d['weights'][1]:.6g}")]
+    if info.get("description"):
+        rows.insert(1, ("description", _short(info["description"])))
+    return [f"{d['path']}: BRDF measurements, {d['bytes_on_disk']:,} bytes on disk",
+            *_rows(rows)]
 
 
 def _matrix_rows(d: dict[str, Any]) -> list[tuple[str, Any]]:

@@ -231,7 +231,7 @@ class _Values(BRDF):
     (lambda: fit_model(Lambert(0.5), "lambert+ggx", widths=(0.0,)), ValueError,
      "widths must be finite, > 0"),
     (lambda: fit_model("lambert", "lambert+ggx"), TypeError,
-     "brdf must be a BRDF \\(an object with eval\\(wi, wo\\)\\), got str"),
+     "brdf must be a BRDF \\(an object with eval\\(wi, wo\\)\\) or project.Measurements, got str"),
     (lambda: fit_model(_Values(np.nan), "lambert+ggx", **FAST), ValueError,
      "brdf must be finite at the fitting pairs: 3 values are NaN or inf"),
     (lambda: fit_model(_Values(-1.0), "lambert+ggx", **FAST), ValueError,

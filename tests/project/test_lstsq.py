@@ -90,6 +90,9 @@ def test_design_columns_are_helmholtz_modes(isotropic, unit_vectors):
 
 
 @pytest.mark.parametrize("basis", [HemiZernike(4), HemiHarmonics(5)])
+# a constant is not in the span of the odd completion (HemiHarmonics), whose fit of f = 1
+# is then rightly reported worse than a Lambertian one; the condition number is the point
+@pytest.mark.filterwarnings("ignore:fit predicts held-out samples worse than a Lambertian")
 def test_exact_quadrature_gives_condition_one(basis):
     # the columns are orthonormal on H x H; the product of two exact rules integrates every
     # product of two columns exactly, so the weighted design has orthonormal columns

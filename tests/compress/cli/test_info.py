@@ -197,3 +197,84 @@ def test_console_exit_status(tmp_path):
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.strip() == (f"scatmodes info: error: file {str(tmp_path / 'x.h5')!r} does "
                                 "not exist")
+
+
+# ------------------------------------------------------------------------ measurement files
+CORNELL = """# Cornell University, Program of Computer Graphics
+# Test Lacquer
+
+# num wls
+3
+
+# wls
+450 550
+650
+
+# theta i, phi i, theta s, phi_s, spectral sample values
+
+0.174533 0.000000 0.573513 0.000000 0.1 0.2 0.3
+0.174533 0.000000 0.427512 -0.261799 0.4 0.5 0.6
+1.396263 0.000000 0.000000 0.000000 2.5 0.0 -0.01
+"""
+
+
+def test_cornell_measurements(tmp_path, capsys):
+    path = tmp_path / "lacquer.brdf"
+    path.write_text(CORNELL)
+    d = described(capsys, path)
+    assert d["kind"] == "measurements" and d["samples"] == 3 and d["channels"] == 3
+    assert d["wavelengths_nm"] == [450.0, 650.0] and d["isotropic"] is True
+    assert d["info"]["format"] == "cornell" and d["incidence_directions"] == 2
+    assert d["theta_i_deg"] == [10.000004, 79.999977]  # 0.174533 rad, 1.396263 rad
+    assert d["negative_values"] == 1 and d["value_range"][0] == [0.1, 2.5]
+    status, out, err = run(capsys, "info", str(path))
+    assert status == 0, err
+    assert out.splitlines()[0] == f"{path}: BRDF measurements, {path.stat().st_size:,} bytes " \
+                                  "on disk"
+    r = rows(out)
+    assert r["description"] == "Cornell University, Program of Computer Graphics / Test Lacquer"
+    assert r["samples"] == "3" and r["channels"] == "3 (450-650 nm)"
+    assert r["isotropic"] == "yes (as stated)" and r["phi_i constant"] == "yes"
+    assert r["negative values"] == "1 (11.1 %)"
+    assert r["incidence directions"] == "2; theta_i [10, 80] deg"
+
+
+def test_csv_measurements(tmp_path, capsys):
+    path = tmp_path / "gonio.csv"
+    path.write_text("theta_i,phi_i,theta_o,phi_o,R,G,B\n0.5,0,1.2,3,1,2,3\n1.2,3,0.5,0,1,2,3\n")
+    d = described(capsys, path)
+    assert d["kind"] == "measurements" and d["channel_names"] == ["R", "G", "B"]
+    assert d["isotropic"] is None and d["reciprocal_pairs"] == 2
+    assert d["info"]["angles"] == "radians"
+    assert d["info"]["angles_from"].startswith("detected: every theta <= pi/2")
+    status, out, _ = run(capsys, "info", str(path))
+    r = rows(out)
+    assert r["isotropic"] == "not stated" and r["channels"] == "3 ([R, G, B])"
+    assert r["angles"].startswith("radians (detected: every theta <= pi/2")
+
+
+def test_damaged_measurements(tmp_path, capsys):
+    path = tmp_path / "cut.brdf"
+    path.write_text(CORNELL[:-12])
+    line = one_line_error(capsys, "info", str(path))
+    assert f"{str(path)!r} is not an HDF5 file" in line
+    assert "line 15: the wavelength count 3 (line 5) does not fit the body" in line
+
+
+def test_rgl_file(tmp_path, capsys):
+    rgl = pytest.importorskip("project.measured.rgl")
+    f32 = np.float32
+    fields = {
+        "description": np.frombuffer(b"grey", np.uint8), "jacobian": np.array([1], np.uint8),
+        "theta_i": np.array([0, np.pi / 2], f32), "phi_i": np.array([0], f32),
+        "ndf": np.ones((2, 2), f32), "sigma": np.ones((2, 2), f32),
+        "vndf": np.ones((1, 2, 2, 2), f32), "luminance": np.ones((1, 2, 2, 2), f32),
+        "rgb": np.full((1, 2, 3, 2, 2), 0.5, f32)}
+    path = rgl.write_tensor_file(tmp_path / "grey.bsdf", fields)
+    d = described(capsys, path)
+    assert d["kind"] == "rgl" and d["name"] == "grey" and d["description"] == "grey"
+    assert d["channels"] == 3 and d["isotropic"] is True and d["jacobian"] is True
+    assert d["theta_i_nodes"] == 2 and d["phi_i_nodes"] == 1 and d["wavelengths_nm"] is None
+    status, out, _ = run(capsys, "info", str(path))
+    assert "RGL-EPFL measured BRDF" in out.splitlines()[0]
+    assert rows(out)["incidence nodes"] == "2 theta_i x 1 phi_i"
