@@ -10,6 +10,7 @@ retro-reflection, grazing effects. :func:`hybrid` fits the lobe first and projec
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -19,6 +20,8 @@ import basis
 import project
 from basis import CoefficientMatrix
 from basis.validation import nonneg_int
+from project.crossval import cross_validate
+from project.measurements import FOLDS
 
 __all__ = ["Hybrid", "hybrid"]
 
@@ -135,20 +138,26 @@ def _combine(a: ArrayLike, b: ArrayLike, sign: float) -> NDArray[np.float64]:
     return a + sign * b
 
 
-def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernike",
+def hybrid(brdf: Any, order: int, *, lobe: Any = None, kind: str = "zernike",
            metric: str = "l2", lobe_options: dict[str, Any] | None = None,
-           error_samples: int = 1 << 15, seed: int = 1, **project_kwargs: Any) -> Hybrid:
+           error_samples: int = 1 << 15, seed: int = 1, folds: int = FOLDS,
+           **project_kwargs: Any) -> Hybrid:
     """Fit a lobe to ``brdf`` and expand the residual ``brdf - lobe`` in a basis.
 
     Parameters
     ----------
-    brdf : BRDF
-        The BRDF to represent (an analytic model, a MERL table, ...).
+    brdf : BRDF or project.Measurements
+        The BRDF to represent (an analytic model, a MERL table, ...), or scattered
+        measurements: the lobe is then fitted to the samples, the residual's expansion by
+        least squares to the samples' residuals (:func:`project.fit`, its regularisation
+        chosen by cross-validation), and the errors are cross-validated (``folds``).
     order : int
         Order of the residual's basis.
-    lobe : str or BRDF
+    lobe : str or BRDF, optional
         A family of :func:`project.fit_model` (fitted to ``brdf`` with ``metric`` and
-        ``lobe_options``), or a lobe already fitted (any BRDF), used as it is.
+        ``lobe_options``), or a lobe already fitted (any BRDF), used as it is. Default
+        ``"factored"`` for a BRDF and ``"lambert+ggx"`` for measurements (the factored
+        tables need a BRDF that can be evaluated anywhere).
     kind : str
         Basis kind of the residual, one of :data:`basis.KINDS`.
     metric : {"l2", "log"}
@@ -159,8 +168,12 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
         Pairs of :func:`project.sampling.peak_resolving_pairs` on which the errors of the
         result are measured (0: skip); ``seed`` seeds them.
     seed : int
+    folds : int
+        Measurements only: folds of the cross-validated errors (0 skips them).
     **project_kwargs
-        Passed to :func:`project.project` for the residual (``quantity``, ``tol``, ...).
+        Passed to :func:`project.project` for the residual (``quantity``, ``tol``, ...),
+        or to :func:`project.fit` for measurements (``quantity``, ``regularization``,
+        ``isotropic``...).
         The quantity defaults to ``"f_cos"``: the residual's expansion is then the
         orthogonal projection of q - q_lobe in the L2 norm of q = f cos cos, the norm of the
         ``l2`` error, so the hybrid is never worse than its lobe alone in that norm (up to
@@ -179,10 +192,17 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
         total bytes, and the errors of the whole against ``brdf``: ``l2`` (relative L2 of
         f cos cos over H x H), ``log`` and ``l2_stderr``, measured on pairs concentrated
         around the mirror direction as well as uniform (:mod:`project.sampling`), so sharp
-        peaks are resolved.
+        peaks are resolved. For measurements: the same errors on held-out samples, by
+        k-fold cross-validation of the whole procedure (:func:`project.crossval.
+        cross_validate`), with ``log_stderr``, ``folds`` and ``validation``.
     """
     order = nonneg_int(order, "order")
     b = basis.make_basis(kind, order)
+    if isinstance(brdf, project.Measurements):
+        return _hybrid_samples(brdf, order, b, lobe, kind, metric, lobe_options, folds,
+                               project_kwargs)
+    if lobe is None:
+        lobe = "factored"
     if isinstance(lobe, str):
         from project.fitting import fit_model
 
@@ -201,4 +221,43 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = "factored", kind: str = "zernik
         from project.sampling import brdf_errors, peak_resolving_pairs
 
         out.info.update(brdf_errors(brdf, out, peak_resolving_pairs(error_samples, seed=seed)))
+    return out
+
+
+def _hybrid_samples(meas: project.Measurements, order: int, b: basis.Basis, lobe: Any,
+                    kind: str, metric: str, lobe_options: dict[str, Any] | None, folds: int,
+                    fit_kwargs: dict[str, Any]) -> Hybrid:
+    """hybrid(measurements, ...): lobe and residual fitted to the samples, errors by CV."""
+    folds = nonneg_int(folds, "folds")
+    if folds == 1:
+        raise ValueError("folds must be 0 (no cross-validation) or >= 2, got 1")
+    given = not isinstance(lobe, str) and lobe is not None
+    if given and lobe_options:
+        raise ValueError("lobe_options apply only when the lobe is fitted here (lobe given "
+                         "as a family name)")
+    family = "lambert+ggx" if lobe is None else lobe
+    fit_kwargs = {"quantity": "f_cos", **fit_kwargs}
+    isotropic = fit_kwargs.pop("isotropic", meas.isotropic is not False)
+
+    def build(m: project.Measurements) -> Hybrid:
+        lb = lobe if given else project.fit_model(m, family, metric=metric, folds=0,
+                                                   **dict(lobe_options or {}))
+        rest = np.asarray(lb.eval(m.wi, m.wo), dtype=np.float64).reshape(len(m), -1)
+        res_meas = project.Measurements(m.wi, m.wo, m.values - rest, weights=m.weights,
+                                        isotropic=m.isotropic)
+        with warnings.catch_warnings():
+            # the residual of a good lobe is mostly noise, which a Lambertian fit predicts
+            # as well: that warning is about the residual, not about the hybrid
+            warnings.filterwarnings("ignore", message="fit predicts held-out samples")
+            res = project.fit(res_meas, b, isotropic=isotropic, **fit_kwargs)
+        info = {"source": repr(meas), "order": order, "kind": kind,
+                "lobe_bytes": int(getattr(lb, "nbytes", 0)), "residual_bytes": res.nbytes,
+                "residual_validation_error": res.info.get("validation_error")}
+        out = Hybrid(lb, res, info)
+        out.info["bytes"] = out.nbytes
+        return out
+
+    out = build(meas)
+    if folds:
+        out.info.update(cross_validate(meas, build, k=folds))
     return out

@@ -22,6 +22,16 @@ the next one could not be smaller than the smallest that already meets the toler
 result is the smallest in the whole list, without fitting what cannot win. The table in
 ``info["candidates"]`` says for each one whether it was measured or why not.
 
+**Measurements.** Given a :class:`project.Measurements` (scattered samples, e.g. a
+gonioreflectometer's) instead of a BRDF, every candidate is fitted to the samples (models
+by :func:`project.fit_model`, expansions by least squares, :func:`project.fit`) and its
+error is cross-validated: k-fold (default 10) on held-out samples, each fold's fit rounded
+to the storage type before it predicts, the folds grouped as :meth:`project.Measurements.
+folds` groups twin pairs, and a standard error over the folds. The default candidates are
+then :data:`SAMPLE_CANDIDATES`: compact models first, since an expansion of a few thousand
+samples at a few incidence angles cannot follow a narrow highlight between them (see
+:func:`project.fit`).
+
 Why the three forms: a narrow specular peak holds almost all of the L2 norm of a glossy
 material, which truncated expansions resolve only at orders far beyond their size budget
 (above 90 % error at order 24 on metals and plastics), while a few kilobytes of tables in
@@ -44,6 +54,8 @@ import basis
 import project
 from basis import CoefficientMatrix
 from basis.validation import as_directions, choice, nonneg_int
+from project.crossval import sample_errors
+from project.measurements import FOLDS
 from project.sampling import peak_resolving_pairs, value_errors
 
 from .hybrid import Hybrid
@@ -51,7 +63,7 @@ from .hybrid import hybrid as make_hybrid
 from .scene import Environment
 from .truncate import PRECISIONS, lowrank, precision, unique_coefficients
 
-__all__ = ["DEFAULT_CANDIDATES", "NoCandidateError", "select"]
+__all__ = ["DEFAULT_CANDIDATES", "SAMPLE_CANDIDATES", "NoCandidateError", "select"]
 
 FORMS = ("modal", "model", "hybrid")
 #: Stopping tolerance of the factored fits among the default candidates: on the
@@ -72,6 +84,20 @@ DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
     *({"form": "hybrid", "family": "factored", "rank": r, "bins": b, "tol": _FACTORED_TOL,
        "kind": "zernike", "order": n} for r, b, n in ((4, (32, 24, 8), 4),
                                                        (6, (40, 24, 8), 6))),
+)
+#: The default candidates for measurements: parametric models (the factored tables need a
+#: BRDF that can be evaluated anywhere), low orders of the Zernike basis fitted by least
+#: squares, and microfacet lobes with a low-order residual.
+SAMPLE_CANDIDATES: tuple[dict[str, Any], ...] = (
+    {"form": "model", "family": "lambert+ggx", "restarts": 2},
+    {"form": "model", "family": "lambert+beckmann", "restarts": 2},
+    {"form": "model", "family": "lafortune", "lobes": 1, "restarts": 2},
+    {"form": "model", "family": "lafortune", "lobes": 2, "restarts": 4},
+    {"form": "modal", "kind": "zernike", "order": 2},
+    {"form": "modal", "kind": "zernike", "order": 4},
+    {"form": "modal", "kind": "zernike", "order": 8},
+    {"form": "hybrid", "family": "lambert+ggx", "restarts": 2, "kind": "zernike", "order": 2},
+    {"form": "hybrid", "family": "lambert+ggx", "restarts": 2, "kind": "zernike", "order": 4},
 )
 _FIT_KEYS = frozenset(project.fitting.FACTORED_OPTIONS) | {"restarts", "lobes", "n",
                                                              "max_nfev"}
@@ -108,14 +134,16 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
            scene: Mapping[str, Any] | None = None,
            dtypes: Iterable[str] = ("float16", "float32", "float64"),
            error_n: int = 1 << 16, seed: int = 2027, exhaustive: bool = False,
-           progress: bool = False) -> Any:
+           progress: bool = False, folds: int = FOLDS) -> Any:
     """Return the representation of ``brdf`` with the fewest bytes whose error is <= ``tol``.
 
     Parameters
     ----------
-    brdf : BRDF
+    brdf : BRDF or project.Measurements
         Any object with ``eval(wi, wo)``, ``channels`` and ``isotropic`` returning finite
-        values >= 0: an analytic model, :func:`project.measured.read_merl`, ...
+        values >= 0: an analytic model, :func:`project.measured.read_merl`, ...; or
+        scattered measurements, whose candidates are fitted to the samples and judged by
+        cross-validation (module notes).
     tol : float
         Tolerance, > 0, on ``metric`` (or on the radiance error with ``scene``); ``inf``
         returns the smallest candidate that can be built.
@@ -144,12 +172,15 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
     error_n : int
         Pairs of the error estimate (:func:`project.sampling.peak_resolving_pairs`).
     seed : int
-        Seeds the error pairs (fits use their own seeds, so the errors are independent).
+        Seeds the error pairs (fits use their own seeds, so the errors are independent),
+        or, for measurements, the assignment of samples to folds.
     exhaustive : bool
         Build and measure every candidate, also those that cannot be the smallest (for
         charts of bytes against error).
     progress : bool
         Print one line per candidate built.
+    folds : int
+        Measurements only: folds of the cross-validation, >= 2.
 
     Returns
     -------
@@ -160,7 +191,8 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
         pass again as ``candidates=[...]``), ``family`` (the model family, the basis
         kind of a modal candidate, ``"<family> + <kind>"`` for a hybrid), ``dtype``,
         ``bytes``, ``l2``,
-        ``log``, ``l2_stderr``, ``scene`` (with ``scene=``), ``error`` (what decides),
+        ``log``, ``l2_stderr``, ``log_stderr`` (measurements), ``scene`` (with
+        ``scene=``), ``error`` (what decides),
         ``meets``, ``seconds`` (to build) and ``status`` (``"measured"``,
         ``"skipped: ..."`` or ``"failed: ..."``).
 
@@ -201,21 +233,32 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
                          f"got {tol!r}")
     metric = choice(metric, "metric", METRICS)
     dtypes = _dtypes(dtypes)
-    if not callable(getattr(brdf, "eval", None)):
-        raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)), got "
-                        f"{type(brdf).__name__}")
+    sampled = isinstance(brdf, project.Measurements)
+    if not sampled and not callable(getattr(brdf, "eval", None)):
+        raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)) or "
+                        f"project.Measurements, got {type(brdf).__name__}")
     channels = nonneg_int(getattr(brdf, "channels", 1), "brdf.channels")
+    default = SAMPLE_CANDIDATES if sampled else DEFAULT_CANDIDATES
     builds = [_build_spec(c, channels, dtypes)
-              for c in (DEFAULT_CANDIDATES if candidates is None else list(candidates))]
+              for c in (default if candidates is None else list(candidates))]
     if not builds:
         raise ValueError("candidates must hold at least one candidate")
-    samples = peak_resolving_pairs(nonneg_int(error_n, "error_n"), seed=seed)
-    f = np.asarray(brdf.eval(samples.wi, samples.wo), dtype=np.float64)
-    if not np.all(np.isfinite(f)) or np.any(f < 0):
-        raise ValueError(f"brdf must return finite values >= 0; {repr(brdf)[:80]} returns "
-                         f"{int(np.sum(~np.isfinite(f)))} non-finite and "
-                         f"{int(np.sum(f < 0))} negative values at the error pairs")
-    judge = _scene_judge(brdf, scene) if scene is not None else None
+    if sampled:
+        if scene is not None:
+            raise ValueError("scene= needs a BRDF that can be evaluated under any light; "
+                             "measurements hold values at their samples only: select on "
+                             "the samples, then judge the result in the scene")
+        judge = None
+        measure = _SampleJudge(brdf, nonneg_int(folds, "folds"), seed, metric)
+    else:
+        samples = peak_resolving_pairs(nonneg_int(error_n, "error_n"), seed=seed)
+        f = np.asarray(brdf.eval(samples.wi, samples.wo), dtype=np.float64)
+        if not np.all(np.isfinite(f)) or np.any(f < 0):
+            raise ValueError(f"brdf must return finite values >= 0; {repr(brdf)[:80]} "
+                             f"returns {int(np.sum(~np.isfinite(f)))} non-finite and "
+                             f"{int(np.sum(f < 0))} negative values at the error pairs")
+        judge = _scene_judge(brdf, scene) if scene is not None else None
+        measure = _PairJudge(brdf, samples, f, metric)
 
     # unknown sizes first (cheap parametric fits), then by the smallest size possible
     def order(b: _Build) -> tuple[int, int]:
@@ -224,7 +267,6 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
 
     builds.sort(key=order)
     best: tuple[int, float, Any, dict] | None = None
-    fits: dict[tuple, Any] = {}  # lobes fitted once, shared by models and hybrids
     for b in builds:
         smallest = b.bytes(b.dtypes[0])
         if best is not None and not exhaustive and smallest is not None \
@@ -236,20 +278,17 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
         start = time.perf_counter()
         try:
             with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # a slow fit is measured
-                rep = _make(b.spec, brdf, fits, metric)
+                # a slow fit, or a fit worse than zero, is measured and reported in the table
+                warnings.simplefilter("ignore", RuntimeWarning)
+                measured = measure(b)
         except (ValueError, RuntimeError, np.linalg.LinAlgError, MemoryError) as e:
             b.rows = [_row(b, d, status=f"failed: {e}") for d in b.dtypes]
             continue
         seconds = time.perf_counter() - start
-        for d in b.dtypes:
-            try:
-                r, nbytes = _rounded(rep, d, b.spec)
-            except ValueError as e:
-                b.rows.append(_row(b, d, status=f"failed: {e}"))
+        for d, (r, nbytes, err) in zip(b.dtypes, measured, strict=True):
+            if r is None:
+                b.rows.append(_row(b, d, status=f"failed: {err}"))
                 continue
-            g = r.eval(samples.wi, samples.wo)
-            err = value_errors(f, g, samples)
             row = _row(b, d, bytes=nbytes, seconds=seconds, status="measured", **err)
             if judge is not None:
                 row["scene"] = judge(r)
@@ -265,6 +304,7 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
             print(f"select: {b.label} ({seconds:.1f} s): {summary}", flush=True)
     table = [row for b in builds for row in b.rows]
     table.sort(key=lambda r: (r["bytes"] is None, r["bytes"] or 0, r["label"]))
+    how = measure.description
     if best is None:
         done = [r for r in table if r["status"] == "measured"]
         closest = min(done, key=lambda r: r["error"]) if done else None
@@ -274,11 +314,93 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
             + (f": the smallest error is {closest['error']:.4g}, {closest['label']} at "
                f"{closest['bytes']} bytes ({closest['dtype']})" if closest else
                ": every candidate failed (see .candidates)")
-            + "; add larger candidates or raise the tolerance", table)
+            + f" (errors {how}); add larger candidates or raise the tolerance", table)
     nbytes, _, rep, row = best
     rep.info = {**rep.info, "selected": row, "bytes": nbytes, "dtype": row["dtype"],
-                "candidates": table, "tol": tol, "metric": "scene" if judge else metric}
+                "candidates": table, "tol": tol, "metric": "scene" if judge else metric,
+                "errors": how}
     return rep
+
+
+# -- measuring candidates -------------------------------------------------------------------------
+
+class _PairJudge:
+    """Build a candidate from a BRDF; measure it, rounded, on the peak-resolving pairs."""
+
+    def __init__(self, brdf: Any, samples: Any, f: np.ndarray, metric: str) -> None:
+        self.brdf, self.samples, self.f, self.metric = brdf, samples, f, metric
+        self.fits: dict[tuple, Any] = {}  # lobes fitted once, shared by models and hybrids
+        self.description = f"on {len(samples)} pairs, {samples.description}"
+
+    def __call__(self, b: _Build) -> list[tuple[Any, int | None, Any]]:
+        """Return (rounded representation, bytes, errors) per storage type of ``b``."""
+        rep = _make(b.spec, self.brdf, self.fits, self.metric)
+        out: list[tuple[Any, int | None, Any]] = []
+        for d in b.dtypes:
+            try:
+                r, nbytes = _rounded(rep, d, b.spec)
+            except ValueError as e:
+                out.append((None, None, e))
+                continue
+            g = r.eval(self.samples.wi, self.samples.wo)
+            out.append((r, nbytes, value_errors(self.f, g, self.samples)))
+        return out
+
+
+class _SampleJudge:
+    """Fit a candidate to measurements; its errors by k-fold cross-validation.
+
+    Each fold's fit is rounded to every storage type before it predicts its held-out
+    samples; the representation returned is the fit to all samples, rounded. Lobes are
+    fitted once per fold and shared by models and hybrids.
+    """
+
+    def __init__(self, meas: Any, k: int, seed: int, metric: str) -> None:
+        if k < 2:
+            raise ValueError(f"folds must be >= 2 for measurements, got {k}")
+        self.meas, self.metric = meas, metric
+        self.folds = meas.folds(k, seed=seed, by="pairs")
+        self.ids = [int(i) for i in np.unique(self.folds)]
+        if len(self.ids) < 2:
+            raise ValueError(f"cross-validation needs at least 2 distinct direction pairs, "
+                             f"{meas!r} has {len(self.ids)}")
+        self.train = {i: meas[self.folds != i] for i in self.ids}
+        self.fits: dict[Any, dict[tuple, Any]] = {i: {} for i in (*self.ids, "all")}
+        self.description = (f"{len(self.ids)}-fold cross-validated on {len(meas)} held-out "
+                            f"samples (seed {seed})")
+
+    def __call__(self, b: _Build) -> list[tuple[Any, int | None, Any]]:
+        """Return (rounded representation, bytes, errors) per storage type of ``b``."""
+        meas = self.meas
+        n, c = meas.values.shape
+        preds: dict[str, Any] = {d: np.empty((n, c)) for d in b.dtypes}
+        for i in self.ids:
+            rep = _make(b.spec, self.train[i], self.fits[i], self.metric)
+            test = self.folds == i
+            for d in b.dtypes:
+                if isinstance(preds[d], ValueError):
+                    continue
+                try:
+                    r, _ = _rounded(rep, d, b.spec)
+                except ValueError as e:  # a parameter beyond the storage type's range
+                    preds[d] = e
+                    continue
+                g = np.asarray(r.eval(meas.wi[test], meas.wo[test]), dtype=np.float64)
+                preds[d][test] = g.reshape(int(test.sum()), -1)
+        rep = _make(b.spec, meas, self.fits["all"], self.metric)
+        out: list[tuple[Any, int | None, Any]] = []
+        for d in b.dtypes:
+            try:
+                if isinstance(preds[d], ValueError):
+                    raise preds[d]
+                r, nbytes = _rounded(rep, d, b.spec)
+                err = sample_errors(meas, preds[d], folds=self.folds)
+            except ValueError as e:
+                out.append((None, None, e))
+                continue
+            out.append((r, nbytes, {k: err[k] for k in ("l2", "l2_stderr", "log",
+                                                         "log_stderr")}))
+        return out
 
 
 # -- candidates ---------------------------------------------------------------------------------
@@ -369,6 +491,8 @@ def _lobe(spec: dict[str, Any], brdf: Any, fits: dict[tuple, Any]) -> Any:
     opts = _fit_options(spec)
     key = (spec["family"], tuple(sorted((k, repr(v)) for k, v in opts.items())))
     if key not in fits:
+        if isinstance(brdf, project.Measurements):
+            opts["folds"] = 0  # the candidate is cross-validated as a whole
         fits[key] = project.fit_model(brdf, spec["family"], **opts)
     return fits[key]
 
@@ -379,13 +503,23 @@ def _nodes(order: int) -> tuple[int, int]:
 
 def _make(spec: dict[str, Any], brdf: Any, fits: dict[tuple, Any], metric: str) -> Any:
     form = spec["form"]
+    sampled = isinstance(brdf, project.Measurements)
     if form == "model":
         return _lobe(spec, brdf, fits)
     if form == "hybrid":
+        if sampled:
+            return make_hybrid(brdf, spec["order"], lobe=_lobe(spec, brdf, fits),
+                               kind=spec["kind"], folds=0)
         return make_hybrid(brdf, spec["order"], lobe=_lobe(spec, brdf, fits),
                            kind=spec["kind"], error_samples=0,
                            nodes=_nodes(spec["order"]))
     b = basis.make_basis(spec["kind"], spec["order"])
+    if sampled:
+        cm = project.fit(brdf, b, quantity="f_cos" if metric == "l2" else "f",
+                         isotropic=brdf.isotropic is not False)
+        if spec.get("rank") is not None:
+            cm = lowrank(cm, nonneg_int(spec["rank"], "candidate rank"))
+        return cm
     # for the l2 error of q the L2(q) projection (f_cos) is the optimal expansion
     quantity = "f_cos" if metric == "l2" else "auto"
     cm = project.project(brdf, b, nodes=_nodes(spec["order"]), quantity=quantity)
