@@ -73,7 +73,9 @@ from numpy.typing import ArrayLike, NDArray
 import project
 from basis import KINDS, CoefficientMatrix, make_basis
 from basis.validation import nonneg_int
+from project.crossval import out_of_fold, sample_errors
 from project.io import atomic_path
+from project.measurements import FOLDS
 
 from .truncate import smooth as _smooth
 from .truncate import unique_coefficients
@@ -436,6 +438,58 @@ class Study:
         return Path(path)
 
 
+def _study_samples(meas: project.Measurements, kinds: tuple[str, ...], orders: list[int],
+                   quantity: str, smooth: str | None, max_theta: float, seed: int,
+                   time_eval: bool, fit_kwargs: dict[str, Any]) -> Study:
+    """study(measurements, ...): least-squares fits, every metric on held-out samples."""
+    quantity = "f_cos" if quantity == "auto" else quantity
+    fit_kwargs.setdefault("isotropic", meas.isotropic is not False)
+    folds = meas.folds(FOLDS, seed=seed)
+    zi, zo = meas.wi[:, 2], meas.wo[:, 2]
+    domain = (zi > np.cos(max_theta)) & (zo > np.cos(max_theta))
+    f, w = meas.values, meas.weights[:, None]
+    rows, messages = [], []
+    for k in kinds:
+        for order in orders:
+            b = make_basis(k, order)
+
+            def fit(m: project.Measurements, b: Any = b) -> CoefficientMatrix:
+                cm = project.fit(m, b, quantity=quantity, **fit_kwargs)
+                return cm if smooth is None else _smooth(cm, smooth)
+
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                start = time.perf_counter()
+                cm = fit(meas)
+                seconds = time.perf_counter() - start
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")  # the folds repeat the full fit's
+                    (pred,) = out_of_fold(meas, fit, folds)
+            messages += [str(c.message) for c in caught]
+            row: dict[str, Any] = dict(kind=k if smooth is None else f"{k}/{smooth}",
+                                       order=order, quantity=cm.quantity,
+                                       coefficients=unique_coefficients(cm))
+            row["bytes"] = 8 * row["coefficients"]
+            row["projection_s"] = seconds
+            row["eval_ns"] = eval_ns(cm) if time_eval else float("nan")
+            row["l2"] = sample_errors(meas, pred, folds=folds)["l2"]
+            g = np.broadcast_to(pred, f.shape)
+            row["negative"] = float(np.max(np.sum(w * (g < 0), axis=0) / np.sum(w)))
+            for suffix, sel in (("", domain), ("_all", np.ones_like(domain))):
+                row.update({key + suffix: v for key, v in _pointwise(
+                    f[sel], g[sel], w[sel], zi[sel, None]).items()})
+                row["albedo" + suffix] = None
+                a, r = cm.eval(meas.wi[sel], meas.wo[sel]), cm.eval(meas.wo[sel], meas.wi[sel])
+                scale = float(np.max(np.abs(a), initial=0.0)) or 1.0
+                row["reciprocity" + suffix] = float(np.max(np.abs(a - r), initial=0.0)) / scale
+            row["truncation_error"] = None
+            row["warnings"] = len(caught)
+            rows.append(row)
+    how = (f"{int(np.unique(folds).size)}-fold cross-validation on {len(meas)} held-out "
+           "samples, weighted by their weights")
+    return Study(rows, repr(meas), quantity, how, messages)
+
+
 def pareto_front(cost: ArrayLike, error: ArrayLike) -> NDArray[np.bool_]:
     """Mask of the points not dominated in (cost, error), both to be minimised.
 
@@ -463,7 +517,14 @@ def study(brdf: Any, kind: str | Sequence[str], orders: Sequence[int], *,
 
     Parameters
     ----------
-    brdf : BRDF
+    brdf : BRDF or project.Measurements
+        For measurements, each row is a least-squares fit (:func:`project.fit`, its
+        regularisation chosen by cross-validation) and every metric is measured on
+        held-out samples: each sample is predicted by the fit to the other folds of a
+        10-fold split (:meth:`project.Measurements.folds`, seeded by ``seed``), with the
+        samples' weights as the measure; ``D`` is the samples with both polar angles below
+        ``max_theta``; ``albedo`` and ``truncation_error`` are None (no rule over H x H);
+        ``projection_s`` is the time of the fit to all samples, ``nodes`` is unused.
     kind : str or sequence of str
         Basis kinds, :data:`KINDS`: ``"zernike"`` (HemiZernike), ``"harmonics"``
         (HemiHarmonics, odd: Westin's choice), ``"harmonics-even"``, ``"sh"``
@@ -495,6 +556,9 @@ def study(brdf: Any, kind: str | Sequence[str], orders: Sequence[int], *,
     orders = [nonneg_int(o, "orders") for o in orders]
     if not orders:
         raise ValueError("orders must hold at least one order")
+    if isinstance(brdf, project.Measurements):
+        return _study_samples(brdf, kinds, orders, quantity, smooth, max_theta, seed,
+                              time_eval, project_kwargs)
     ts = reference_samples(brdf, nodes=nodes, max_theta=max_theta, seed=seed)
     rows, messages = [], []
     for k in kinds:

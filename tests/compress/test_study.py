@@ -149,3 +149,28 @@ def test_whole_hemisphere_metrics_see_the_grazing_band():
     assert e["max_abs_all"] > 10 * e["max_abs"]
     assert e["rel_rms_all"] > e["rel_rms"]
     assert e["albedo_all"] >= e["albedo"]
+
+
+def test_study_of_measurements_is_cross_validated():
+    """Lambertian samples on random pairs: every order predicts held-out samples exactly
+    (the constant is in every Zernike span), so l2 vanishes; a sample set with a value
+    that no smooth fit predicts (one outlier) shows up in the held-out error of every
+    order, while the fit's own residual would hide it at high order."""
+    from project import Measurements
+    from tests.conftest import random_directions
+
+    rng = np.random.default_rng(3)
+    wi, wo = random_directions(rng, 600, upper=True), random_directions(rng, 600, upper=True)
+    meas = Measurements(wi, wo, np.full(600, 0.25), isotropic=True)
+    st = study(meas, "zernike", [2, 4], time_eval=False)
+    assert [r["order"] for r in st.rows] == [2, 4]
+    assert all(set(r) == set(COLUMNS) for r in st.rows)
+    assert all(r["l2"] < 1e-10 and r["albedo"] is None for r in st.rows)
+    assert "10-fold cross-validation on 600 held-out samples" in st.sampling
+    values = np.full(600, 0.25)
+    values[7] = 25.0  # at normal incidence and exitance, where q = f
+    wi[7] = wo[7] = [0.0, 0.0, 1.0]
+    st = study(Measurements(wi, wo, values, isotropic=True), "zernike", [2], time_eval=False)
+    # q_7 = 25 against q <= 0.25 elsewhere: it holds over 97 % of sum q^2, and held out,
+    # no fit to the other samples predicts it
+    assert st.rows[0]["l2"] > 0.95
