@@ -228,7 +228,7 @@ def test_real_file_matches_reference_formulas(rng):
 
 @pytest.mark.parametrize("name", REAL)
 def test_matches_mitsuba(name, rng):
-    mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 is in the [bench] extra")
+    mi = pytest.importorskip("mitsuba", reason="Mitsuba 3 (in the [test] extra) is not installed")
     path = real_file(name)
     mi.set_variant("scalar_rgb")  # RGB files need an RGB variant (Mitsuba's own check)
     plugin = mi.load_dict({"type": "measured", "filename": str(path)})
