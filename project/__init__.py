@@ -20,6 +20,7 @@ from .lstsq import bin_samples, fit, read_table, tessellate_hemisphere
 from .matrix_brdf import MatrixBRDF
 from .measurements import Measurements
 from .quadrature import default_quantity, project, radial_table, tail_fraction, truncation_error
+from .reciprocity import Reciprocity, reciprocity
 from .sampling import PairSamples, brdf_errors, peak_resolving_pairs
 
 __all__ = [
@@ -30,6 +31,7 @@ __all__ = [
     "default_quantity",
     "MirrorDelta",
     "PairSamples",
+    "Reciprocity",
     "bin_samples",
     "brdf_errors",
     "fit",
@@ -39,6 +41,7 @@ __all__ = [
     "peak_resolving_pairs",
     "project",
     "radial_table",
+    "reciprocity",
     "read_table",
     "tail_fraction",
     "tessellate_hemisphere",

@@ -24,7 +24,8 @@ from scipy.spatial import cKDTree
 from basis import to_angles
 from basis.validation import choice
 
-__all__ = ["FOLDS", "FOLD_GROUPINGS", "HORIZON_ATOL", "UNIT_ATOL", "Measurements", "pair_groups"]
+__all__ = ["FOLDS", "FOLD_GROUPINGS", "HORIZON_ATOL", "UNIT_ATOL", "Measurements", "pair_groups",
+           "reciprocal_matches"]
 
 #: Directions whose length differs from 1 by more than this are refused; others are
 #: renormalised. Six printed decimals per component stay well inside it.
@@ -765,13 +766,26 @@ def _canonical(wi: NDArray, wo: NDArray) -> NDArray:
     return np.concatenate([a, b], axis=1)
 
 
-def _reciprocal_count(wi: NDArray, wo: NDArray, tol_deg: float, isotropic: bool) -> int:
-    """Count samples, w_i != w_o, whose swapped pair is measured (tolerance per direction)."""
+def reciprocal_matches(wi: NDArray, wo: NDArray, tol_deg: float,
+                       isotropic: bool) -> NDArray[np.int64]:
+    """Index pairs (i, j) such that sample j is the reciprocal of sample i within ``tol_deg``.
+
+    Sample j matches sample i when its pair (w_i[j], w_o[j]) lies within ``tol_deg``
+    (degrees, per direction) of the swapped pair (w_o[i], w_i[i]); with ``isotropic``, up
+    to a rotation about the normal and a mirroring (both pairs compared in the canonical
+    form phi_i = 0, w_o y >= 0). Self-matches (j == i: w_i = w_o, or theta_i = theta_o
+    under isotropy) are included.
+
+    Returns
+    -------
+    (m, 2) ndarray of int64
+        Every matching (i, j), sorted by i and, for one i, by increasing distance (the
+        larger of the two chord distances), so the first row of each i is its nearest twin.
+    """
     n = wi.shape[0]
     if n == 0:
-        return 0
+        return np.zeros((0, 2), dtype=np.int64)
     chord = 2.0 * np.sin(np.radians(tol_deg) / 2.0) + 1e-12
-    same = np.linalg.norm(wi - wo, axis=1) <= chord
     if isotropic:
         pts, swapped = _canonical(wi, wo), _canonical(wo, wi)
     else:
@@ -779,12 +793,24 @@ def _reciprocal_count(wi: NDArray, wo: NDArray, tol_deg: float, isotropic: bool)
     tree = cKDTree(pts)
     # each direction within chord => the 6-vector within sqrt(2) chord: candidates, then check
     hits = tree.query_ball_point(swapped, r=np.sqrt(2.0) * chord)
-    count = 0
-    for i, cand in enumerate(hits):
-        if same[i] or not cand:
-            continue
-        d = np.asarray(cand)
-        ok = (np.linalg.norm(pts[d, :3] - swapped[i, :3], axis=1) <= chord) & \
-             (np.linalg.norm(pts[d, 3:] - swapped[i, 3:], axis=1) <= chord)
-        count += bool(ok.any())
-    return count
+    sizes = np.fromiter((len(h) for h in hits), dtype=np.int64, count=n)
+    if not sizes.any():
+        return np.zeros((0, 2), dtype=np.int64)
+    i = np.repeat(np.arange(n, dtype=np.int64), sizes)
+    j = np.fromiter((k for h in hits for k in h), dtype=np.int64, count=int(sizes.sum()))
+    dist = np.maximum(np.linalg.norm(pts[j, :3] - swapped[i, :3], axis=1),
+                      np.linalg.norm(pts[j, 3:] - swapped[i, 3:], axis=1))
+    ok = dist <= chord
+    i, j, dist = i[ok], j[ok], dist[ok]
+    order = np.lexsort((j, dist, i))
+    return np.stack([i[order], j[order]], axis=1)
+
+
+def _reciprocal_count(wi: NDArray, wo: NDArray, tol_deg: float, isotropic: bool) -> int:
+    """Count samples, w_i != w_o, whose swapped pair is measured (tolerance per direction)."""
+    if wi.shape[0] == 0:
+        return 0
+    chord = 2.0 * np.sin(np.radians(tol_deg) / 2.0) + 1e-12
+    same = np.linalg.norm(wi - wo, axis=1) <= chord
+    i = reciprocal_matches(wi, wo, tol_deg, isotropic)[:, 0]
+    return int(np.unique(i[~same[i]]).size)

@@ -26,6 +26,8 @@ __all__ = ["describe", "run", "to_text"]
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _CHECKPOINT = "scatmodes-microgeometry-checkpoint-"
 _TENSOR_MAGIC = b"tensor_file\x00"  # RGL-EPFL .bsdf files (project.measured.rgl)
+#: Pairs drawn to estimate the reciprocity of an RGL file (about 0.1 s; standard error ~1 %).
+RECIPROCITY_PAIRS = 2**14
 
 
 class _Damaged(ValueError):
@@ -75,7 +77,13 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         :meth:`project.Measurements.describe` (its ``info`` holds the format and how it was
         detected); an RGL ``.bsdf`` file kind ``"rgl"``, with ``name``, ``description``,
         ``channels``, ``channel_names``, ``wavelengths_nm``, ``isotropic``, ``jacobian``,
-        ``reduction``, ``theta_i_nodes`` and ``phi_i_nodes``.
+        ``reduction``, ``theta_i_nodes`` and ``phi_i_nodes``. Both measurement kinds add
+        ``reciprocity``: :meth:`project.Reciprocity.describe` of :func:`project.reciprocity`
+        without its ``source`` (``residual``, ``floor``, their ``*_stderr``, ``matched``,
+        ``tol_deg``, ``bands``, ``channels``, ``samples``, ``note``; NaN as null), on
+        :data:`RECIPROCITY_PAIRS` peak-resolving pairs for an RGL file and on the samples
+        with a reciprocal twin for measurements; or ``{"error": message}`` when it cannot be
+        estimated (e.g. values 0 everywhere).
     """
     p = Path(os.fspath(path))
     if not p.exists():
@@ -107,7 +115,19 @@ def _measurements(p: Path) -> dict[str, Any]:
     except ValueError as exc:
         raise ValueError(f"{str(p)!r} is not an HDF5 file (no HDF5 signature in its first "
                          f"bytes) and cannot be read as measurements: {exc}") from None
-    return _plain(meas.describe())
+    return _plain({**meas.describe(), "reciprocity": _reciprocity(meas)})
+
+
+def _reciprocity(source: Any) -> dict[str, Any]:
+    """:func:`project.reciprocity` of a BRDF or measurements, as a JSON-able dict."""
+    from project import reciprocity
+
+    try:
+        d = reciprocity(source, n=RECIPROCITY_PAIRS).describe()
+    except ValueError as exc:  # e.g. values 0 everywhere: the relative residual is undefined
+        return {"error": str(exc)}
+    d.pop("source")
+    return d
 
 
 def _rgl(p: Path) -> dict[str, Any]:
@@ -128,6 +148,7 @@ def _rgl(p: Path) -> dict[str, Any]:
         "reduction": int(getattr(brdf, "reduction", 1)),
         "theta_i_nodes": int(np.size(fields.get("theta_i", ()))),
         "phi_i_nodes": int(np.size(fields.get("phi_i", ()))),
+        "reciprocity": _reciprocity(brdf),
     })
 
 
@@ -270,7 +291,8 @@ def to_text(d: dict[str, Any]) -> str:
                 ("isotropic", "yes" if d["isotropic"] else
                  f"no (azimuthal reduction {d['reduction']})"),
                 ("incidence nodes", f"{d['theta_i_nodes']} theta_i x {d['phi_i_nodes']} phi_i"),
-                ("jacobian", "yes" if d["jacobian"] else "no")]
+                ("jacobian", "yes" if d["jacobian"] else "no"),
+                *_reciprocity_rows(d["reciprocity"])]
         return "\n".join(lines + _rows(rows))
     if d["kind"] == "checkpoint":
         lines.append(f"{d['path']}: simulation checkpoint ({d['format']}), "
@@ -332,11 +354,37 @@ def _measurement_lines(d: dict[str, Any]) -> list[str]:
             ("negative values", f"{d['negative_values']} ({100 * d['negative_fraction']:.3g} %)"),
             ("values", f"{lo:.6g} to {hi:.6g} 1/sr over all channels"),
             ("weights", "none" if d["weights"] is None else
-             f"{d['weights'][0]:.6g} to {d['weights'][1]:.6g}")]
+             f"{d['weights'][0]:.6g} to {d['weights'][1]:.6g}"),
+            *_reciprocity_rows(d["reciprocity"])]
     if info.get("description"):
         rows.insert(1, ("description", _short(info["description"])))
     return [f"{d['path']}: BRDF measurements, {d['bytes_on_disk']:,} bytes on disk",
             *_rows(rows)]
+
+
+def _reciprocity_rows(r: dict[str, Any]) -> list[tuple[str, Any]]:
+    """Rows for the reciprocity of a BRDF or measurements (see :func:`describe`)."""
+    if "error" in r:
+        return [("reciprocity", f"not estimated: {r['error']}")]
+    if r["residual"] is None:
+        return [("reciprocity", f"unknown: {r['note']}")]
+    what = (f"{r['matched']:,} pairs, both orders" if r["tol_deg"] is None else
+            f"{r['matched']:,} samples with a reciprocal twin within {r['tol_deg']:g} deg")
+    se = r["residual_stderr"]
+    rows = [("reciprocity", f"residual ||q - q^T|| / ||q|| = {r['residual']:.4g}"
+                            + ("" if se is None else f" +- {se:.2g}")
+                            + f", floor {r['floor']:.4g} (worst channel; {what})")]
+    bands = r["bands"]
+    if bands and all(b["share"] is not None for b in bands):
+        rows.append(("antisymmetric energy", ", ".join(
+            f"{b['theta_deg'][0]:g}-{b['theta_deg'][1]:g} deg {100 * b['share']:.3g} %"
+            for b in bands) + " (by max(theta_i, theta_o))"))
+        rows.append(("floor below", ", ".join(
+            f"{b['theta_deg'][1]:g} deg " + ("n/a" if b["floor_below"] is None else
+                                           f"{b['floor_below']:.3g}") for b in bands)))
+    if r["note"]:
+        rows.append(("reciprocity note", _short(r["note"])))
+    return rows
 
 
 def _matrix_rows(d: dict[str, Any]) -> list[tuple[str, Any]]:

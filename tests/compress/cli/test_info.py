@@ -278,3 +278,68 @@ def test_rgl_file(tmp_path, capsys):
     status, out, _ = run(capsys, "info", str(path))
     assert "RGL-EPFL measured BRDF" in out.splitlines()[0]
     assert rows(out)["incidence nodes"] == "2 theta_i x 1 phi_i"
+
+
+# ------------------------------------------------------------------------------ reciprocity
+PAPER = os.path.join(os.path.dirname(__file__), "..", "..", "data", "paper_white_rgb.bsdf")
+
+
+def test_rgl_reciprocity(capsys):
+    from compress.cli.info import RECIPROCITY_PAIRS
+    from project import reciprocity
+    from project.measured import read_rgl
+
+    d = described(capsys, PAPER)
+    r = d["reciprocity"]
+    # the same seeded pairs as project.reciprocity with n = RECIPROCITY_PAIRS: equal numbers
+    ref = reciprocity(read_rgl(PAPER), n=RECIPROCITY_PAIRS)
+    assert r["residual"] == ref.residual and r["residual_stderr"] == ref.residual_stderr
+    assert r["floor"] == r["residual"] / 2 and r["matched"] == ref.matched
+    # white paper: residual 0.045 (module notes of project.reciprocity), about 1 % stderr
+    assert 0.03 < r["residual"] < 0.06 and 0 < r["residual_stderr"] < 0.05 * r["residual"]
+    assert r["tol_deg"] is None and "source" not in r and len(r["bands"]) == 4
+    assert [c["name"] for c in r["channels"]] == ["R", "G", "B"]
+    status, out, _ = run(capsys, "info", PAPER)
+    text = rows(out)
+    assert text["reciprocity"].startswith(f"residual ||q - q^T|| / ||q|| = {r['residual']:.4g}"
+                                          f" +- {r['residual_stderr']:.2g}, floor ")
+    assert text["reciprocity"].endswith(f"(worst channel; {r['matched']:,} pairs, both orders)")
+    assert text["antisymmetric energy"].startswith("0-30 deg ")
+    assert text["floor below"].startswith("30 deg ") and "90 deg " in text["floor below"]
+
+
+def test_measurement_reciprocity(tmp_path, capsys):
+    path = tmp_path / "twins.csv"
+    # a pair and its reciprocal with R values 1 and 2, equal G and B; cos products equal
+    path.write_text("theta_i,phi_i,theta_o,phi_o,R,G,B\n0.5,0,1.2,3,1,2,3\n1.2,3,0.5,0,2,2,3\n")
+    r = described(capsys, path)["reciprocity"]
+    # R: sqrt(((1 - 2)^2 + (2 - 1)^2) / (1^2 + 2^2)) = sqrt(2 / 5); G and B: 0
+    assert r["residual"] == pytest.approx(np.sqrt(0.4), rel=1e-12)
+    assert r["residual_stderr"] is None  # one group of twins: no spread to estimate it from
+    assert r["matched"] == 2 and r["tol_deg"] == 0.01 and r["note"] == ""
+    assert [c["residual"] for c in r["channels"][1:]] == [0.0, 0.0]
+    _, out, _ = run(capsys, "info", str(path))
+    assert rows(out)["reciprocity"] == ("residual ||q - q^T|| / ||q|| = 0.6325, floor 0.3162 "
+                                        "(worst channel; 2 samples with a reciprocal twin "
+                                        "within 0.01 deg)")
+
+
+def test_measurements_without_reciprocal_pairs(tmp_path, capsys):
+    path = tmp_path / "lacquer.brdf"
+    path.write_text(CORNELL)  # theta_i 10 and 80 degrees, theta_o 33 and 25 and 0: no twins
+    r = described(capsys, path)["reciprocity"]
+    assert r["residual"] is None and r["floor"] is None and r["matched"] == 0
+    assert r["note"].startswith("no sample has a reciprocal twin within 0.01 deg per "
+                                "direction, up to rotation and mirroring about the normal")
+    _, out, _ = run(capsys, "info", str(path))
+    assert rows(out)["reciprocity"].startswith("unknown: no sample has a reciprocal twin")
+
+
+def test_measurement_reciprocity_not_estimated(tmp_path, capsys):
+    path = tmp_path / "dark.csv"
+    path.write_text("theta_i,phi_i,theta_o,phi_o,v\n0.5,0,1.2,3,0\n1.2,3,0.5,0,0\n")
+    r = described(capsys, path)["reciprocity"]
+    assert r == {"error": "measurements must not be 0 (or of weight 0) at every matched sample "
+                          "of channel 'v': the relative residual is undefined"}
+    status, out, _ = run(capsys, "info", str(path))
+    assert status == 0 and rows(out)["reciprocity"].startswith("not estimated: measurements")
