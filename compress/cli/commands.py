@@ -1,9 +1,11 @@
 """The ``scatmodes`` command line.
 
 Commands: ``demo`` (no data files needed), ``project`` (an analytic model or a MERL file),
-``convert`` (MERL file -> HDF5, the same as ``project --merl``), ``fit`` (a table of
-measurements), ``simulate`` (the microgeometry simulator), ``study`` (error and speed against
-order) and ``info``. Every command has ``--help`` with examples.
+``convert`` (a MERL ``.binary`` or RGL ``.bsdf`` file projected to HDF5; a measurement file is
+fitted as by ``fit``), ``fit`` (a measurement file: our table, CSV or Cornell ``.brdf``; a
+coefficient matrix, or a compact model with ``--model``), ``simulate`` (the microgeometry
+simulator), ``study`` (error and speed against order) and ``info``. Every command has
+``--help`` with examples.
 
 A problem with the input (unknown model, bad parameter, missing or unreadable file,
 unwritable output, bad order, ...) prints exactly one line ``scatmodes <command>: error:
@@ -20,6 +22,7 @@ import contextlib
 import inspect
 import os
 import signal
+import struct
 import sys
 import threading
 import time
@@ -334,14 +337,20 @@ def _fmt(x: Any) -> str:
 
 
 def _project(args: argparse.Namespace) -> int:
+    out = _hdf5_output(args.output)
+    brdf = _source(args)
+    tol = args.tol if args.tol is not None else (1e-3 if args.merl is not None else 1e-6)
+    return _write_projection(brdf, args, out, args.quantity, tol)
+
+
+def _write_projection(brdf: Any, args: argparse.Namespace, out: Path, quantity: str,
+                      tol: float) -> int:
+    """Project ``brdf`` onto ``--basis``/``--order``, save it to ``out`` and report."""
     from compress import save
     from project import project
 
-    out = _hdf5_output(args.output)
-    brdf = _source(args)
     b = _basis(args.basis, args.order)
-    tol = args.tol if args.tol is not None else (1e-3 if args.merl is not None else 1e-6)
-    cm = project(brdf, b, quantity=args.quantity, method=args.method, tol=tol)
+    cm = project(brdf, b, quantity=quantity, method=args.method, tol=tol)
     save(cm, out)
     info = cm.info
     nodes = info.get("nodes")
@@ -353,13 +362,78 @@ def _project(args: argparse.Namespace) -> int:
     return 0
 
 
+# -- what a file holds -----------------------------------------------------------------------
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_TENSOR_MAGIC = b"tensor_file\x00"  # RGL-EPFL .bsdf files (project.measured.rgl)
+_MERL_HEADER = struct.pack("<3i", 90, 90, 180)  # project.measured.MERL_SHAPE[1:], int32
+
+
+def _file_kind(path: Path) -> str:
+    """Return "hdf5", "rgl", "merl" or "measurements" (any other file) by content and suffix."""
+    with open(path, "rb") as fh:
+        head = fh.read(len(_TENSOR_MAGIC))
+    suffix = path.suffix.lower()
+    if head.startswith(_HDF5_SIGNATURE):
+        return "hdf5"
+    if head == _TENSOR_MAGIC or suffix == ".bsdf":
+        return "rgl"
+    if suffix == ".binary" or head.startswith(_MERL_HEADER):
+        return "merl"
+    return "measurements"
+
+
+#: Defaults of the convert options that only a projection uses (MERL and RGL files).
+_CONVERT_TOL, _CONVERT_METHOD = 1e-3, "quadrature"
+
+
 def _convert(args: argparse.Namespace) -> int:
-    args.merl, args.model, args.param = args.file, None, []
-    return _project(args)
+    out = _hdf5_output(args.output)
+    suffix = Path(args.file).suffix.lower()
+    label = {".binary": "--merl", ".bsdf": "RGL"}.get(suffix, "measurement")
+    p = _input_file(args.file, label)
+    kind = _file_kind(p)
+    if kind == "merl":  # exactly 'scatmodes project --merl FILE'
+        args.merl, args.model, args.param = args.file, None, []
+        return _project(args)
+    if kind == "hdf5":
+        raise UserError(f"FILE {args.file!r} is an HDF5 file, not a BRDF or measurements to "
+                        f"convert ('scatmodes info {args.file}' describes it)")
+    if kind == "rgl":
+        from project.measured import read_rgl
+
+        brdf = read_rgl(p)
+        # the stored f grows like 1 / cos(theta_o) at grazing angles (the reference value is
+        # f cos(theta_o)): as "f" it is not square integrable and the projection crawls
+        quantity = "f_cos" if args.quantity == "auto" else args.quantity
+        return _write_projection(brdf, args, out, quantity, args.tol)
+    # scattered measurements: a least-squares fit, as 'scatmodes fit FILE' with its defaults
+    if args.tol != _CONVERT_TOL or args.method != _CONVERT_METHOD:
+        raise UserError(f"--tol and --method apply to projecting a MERL or RGL file; "
+                        f"{args.file!r} holds measurements, which convert fits as 'scatmodes "
+                        "fit' does (drop them; 'scatmodes fit --help' lists the fit's options)")
+    fit_args = argparse.Namespace(
+        table=args.file, label="FILE", output=args.output, format="auto", angles=None,
+        channels=None, wavelengths=None, model=None, basis=args.basis, order=args.order,
+        quantity="f" if args.quantity == "auto" else args.quantity, isotropic=None,
+        regularization="auto", penalty=None, modal_defaults={},
+        note="measurements: fitted by least squares as 'scatmodes fit' does (its options: "
+             "'scatmodes fit --help')",
+        not_text="is neither a MERL .binary, an RGL .bsdf nor a measurement text file",
+        **dict.fromkeys(_MODEL_OPTIONS))
+    return _fit(fit_args)
 
 
 #: The automatic choices of ``fit --regularization`` (``project.lstsq.REGULARIZATION_METHODS``).
 _FIT_METHODS = ("auto", "gcv", "leave-incidence-out")
+#: Formats of ``fit --format`` (``project.measured.tables.MEASUREMENT_FORMATS``) and angle units.
+_FIT_FORMATS = ("table", "csv", "cornell")
+_FIT_ANGLES = ("degrees", "radians")
+#: Families of ``fit --model``: ``project.fitting.FAMILIES`` but "factored" (see _family).
+_FIT_FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "dsbrdf", "rr8807")
+#: Options of the modal fit, refused with --model (when changed from their defaults), and
+#: options of --model (``fit_model``'s), refused without it.
+_MODAL_OPTIONS = ("basis", "order", "quantity", "isotropic", "regularization", "penalty")
+_MODEL_OPTIONS = ("seed", "restarts", "lobes", "max_nfev", "folds")
 
 
 def _fit_regularization(text: str) -> str | float:
@@ -375,33 +449,142 @@ def _fit_regularization(text: str) -> str | float:
     return x
 
 
-def _fit(args: argparse.Namespace) -> int:
-    from compress import save
-    from project import fit, read_table
+def _family(text: str) -> str:
+    name = text.strip().lower()
+    if name == "factored":
+        raise argparse.ArgumentTypeError(
+            "'factored' cannot be fitted to measurements: it tabulates a BRDF on a dense rule "
+            "of half/difference angles and needs a BRDF that can be evaluated anywhere, which "
+            f"scattered samples do not cover; choose one of {', '.join(_FIT_FAMILIES)}")
+    if name not in _FIT_FAMILIES:
+        raise argparse.ArgumentTypeError(f"must be one of {', '.join(_FIT_FAMILIES)}, got "
+                                         f"{text!r}")
+    return name
 
-    out = _hdf5_output(args.output)
-    table = _input_file(args.table, "TABLE")
+
+def _wavelength_list(text: str) -> tuple[float, ...]:
     try:
-        wi, wo, values = read_table(table)
+        nm = tuple(float(x) for x in text.split(","))
+    except ValueError:
+        nm = ()
+    if not nm or not all(0 < x < float("inf") for x in nm) or \
+            any(b <= a for a, b in zip(nm, nm[1:], strict=False)):
+        raise argparse.ArgumentTypeError(f"must be comma-separated wavelengths in nm, > 0 and "
+                                         f"increasing (e.g. 450,550,650), got {text!r}")
+    return nm
+
+
+def _channel_list(text: str) -> list[int | str]:
+    items = [c.strip() for c in text.split(",")]
+    if not all(items):
+        raise argparse.ArgumentTypeError(f"must be comma-separated channel names or indices "
+                                         f"(e.g. R,G or 0,2), got {text!r}")
+    return [int(c) if c.lstrip("-").isdigit() else c for c in items]
+
+
+def _read_measurements(path: str, label: str, fmt: str = "auto", angles: str | None = None,
+                       not_text: str = "is not a text table") -> Any:
+    """Read a measurement file (project.measured.read_measurements), errors in one line."""
+    from project.measured import read_measurements
+
+    p = _input_file(path, label)
+    kind = _file_kind(p)
+    if kind in ("rgl", "merl"):
+        what = "an RGL-EPFL .bsdf" if kind == "rgl" else "a MERL .binary"
+        raise UserError(f"{label} {path!r} is {what} file, a BRDF that can be evaluated "
+                        f"anywhere rather than scattered measurements: project it with "
+                        f"'scatmodes convert {path} -o OUT.h5'")
+    if kind == "hdf5":
+        raise UserError(f"{label} {path!r} is an HDF5 file, not measurements ('scatmodes info "
+                        f"{path}' describes it)")
+    try:
+        p.read_bytes().decode("utf-8-sig")
     except UnicodeDecodeError as err:
         byte = err.object[err.start:err.start + 1].hex()
-        raise UserError(f"TABLE {str(table)!r} is not a text table: it holds the byte 0x{byte}, "
-                        f"which is not UTF-8 (a binary file?); give a text file of rows theta_i "
-                        f"phi_i theta_o phi_o value (see 'scatmodes fit --help')") from None
+        raise UserError(f"{label} {path!r} {not_text}: it holds the byte 0x{byte}, "
+                        f"which is not UTF-8 (a binary file?); give a text file of measurements "
+                        f"(a table, CSV or Cornell .brdf: see 'scatmodes fit --help')") from None
+    try:
+        return read_measurements(p, None if fmt == "auto" else fmt, angles=angles)
     except ValueError as err:
-        # read_table names the line; the file is named here
-        raise UserError(err if str(table) in str(err) else f"TABLE {str(table)!r}: {err}") \
-            from None
+        # read_measurements names the file (quoted) and the line; the argument is named here
+        text, name = str(err), repr(str(p))
+        if text.startswith(name):
+            text = text[len(name):].lstrip(",: ")
+        raise UserError(f"{label} {path!r}: {text}") from None
+
+
+def _select(meas: Any, args: argparse.Namespace, label: str) -> Any:
+    """Apply --channels, then --wavelengths (linear interpolation between channels)."""
+    if args.channels is not None:
+        try:
+            meas = meas.select_channels(args.channels)
+        except (ValueError, TypeError) as err:
+            raise UserError(f"--channels: {err}") from None
+    if args.wavelengths is not None:
+        wl = meas.wavelengths
+        if wl is None:
+            raise UserError(f"--wavelengths needs spectral data: {label} {args.table!r} holds "
+                            f"the channels {', '.join(meas.channel_names)} without wavelengths "
+                            "(pick channels with --channels)")
+        outside = [x for x in args.wavelengths if not wl[0] <= x <= wl[-1]]
+        if outside:
+            raise UserError(f"--wavelengths must lie within the measured range [{wl[0]:g}, "
+                            f"{wl[-1]:g}] nm of {label} {args.table!r} (no extrapolation), "
+                            f"got {outside[0]:g}")
+        meas = meas.at_wavelengths(args.wavelengths)
+    return meas
+
+
+def _options_given(args: argparse.Namespace, names: tuple[str, ...],
+                   defaults: dict[str, Any] | None = None) -> list[str]:
+    """Return the option names of ``names`` whose value differs from its default (None)."""
+    defaults = defaults or {}
+    return ["--" + n.replace("_", "-") for n in names
+            if getattr(args, n) != defaults.get(n)]
+
+
+def _fit(args: argparse.Namespace) -> int:
+    out = _hdf5_output(args.output)
+    label = getattr(args, "label", "TABLE")
+    if args.model is None:
+        given = _options_given(args, _MODEL_OPTIONS)
+        if given:
+            raise UserError(f"{', '.join(given)} appl{'ies' if len(given) == 1 else 'y'} to "
+                            "--model FAMILY (the fit of a parametric model)")
+    else:
+        given = _options_given(args, _MODAL_OPTIONS, args.modal_defaults)
+        if given:
+            raise UserError(f"{', '.join(given)} appl{'ies' if len(given) == 1 else 'y'} to the "
+                            f"modal fit (a coefficient matrix), not to --model {args.model}")
+        if args.lobes is not None and args.model not in ("lafortune", "dsbrdf"):
+            raise UserError(f"--lobes applies to --model lafortune and dsbrdf, not to "
+                            f"{args.model}")
+    meas = _read_measurements(args.table, label, args.format, args.angles,
+                              getattr(args, "not_text", "is not a text table"))
+    info = meas.info
+    note = getattr(args, "note", None)
+    print(f"read {meas!r} from {args.table} ({info.get('format')} format, "
+          f"{info.get('format_detected')})" + (f"; {note}" if note else ""))
+    meas = _select(meas, args, label)
+    if args.model is not None:
+        return _fit_family(args, meas, out)
+    from compress import save
+    from project import fit
+
     b = _basis(args.basis, args.order)
+    isotropic = args.isotropic
+    if isotropic is None:  # as the file states, else isotropic
+        isotropic = meas.isotropic is not False
     t0 = time.perf_counter()
-    cm = fit(wi, wo, values, b, quantity=args.quantity, isotropic=args.isotropic,
+    cm = fit(meas, b, quantity=args.quantity, isotropic=isotropic,
              regularization=args.regularization, penalty=args.penalty)
     seconds = time.perf_counter() - t0
-    cm.info.setdefault("source", f"fit to {table.name}")
+    cm.info.setdefault("source", f"fit to {Path(args.table).name}")
     save(cm, out)
     i = cm.info
     resid = ", ".join(f"{r:.3g}" for r in i["residual_rms"])
-    val = i["validation_error"]
+    val, lam = i["validation_error"], i["lambert_validation_error"]
     how = i["regularization_method"]
     chosen = "given" if how == "given" else f"chosen by {how}"
     print(f"wrote {out}: {_describe(cm)}; {i['samples']} samples, condition number "
@@ -411,7 +594,30 @@ def _fit(args: argparse.Namespace) -> int:
           f"{i['effective_parameters']:.1f} effective parameters, condition number "
           f"{i['cond_regularized']:.3g} regularized; validation error "
           + ("not computed (weight given)" if val is None else
-             f"{100 * val:.3g} % (relative RMS at held-out pairs)"))
+             f"{100 * val:.3g} % (relative RMS at held-out pairs), {100 * lam:.3g} % for a "
+             "Lambertian fit"))
+    return 0
+
+
+def _fit_family(args: argparse.Namespace, meas: Any, out: Path) -> int:
+    """Run ``fit --model FAMILY``: project.fit_model on the measurements, then compress.save."""
+    from compress import save
+    from project import fit_model
+
+    options = {n: getattr(args, n) for n in _MODEL_OPTIONS if getattr(args, n) is not None}
+    model = fit_model(meas, args.model, **options)
+    save(model, out)
+    i = model.info
+    l2, se = i.get("l2"), i.get("l2_stderr")
+    print(f"wrote {out}: {model!r}; {model.nparams} parameters ({model.nbytes} bytes), "
+          f"{model.channels} channel(s)")
+    print(f"fitted to {len(meas)} samples: best of {i['restarts']} restarts (restart "
+          f"{i['best_restart']}, {'converged' if i['converged'] else 'not converged'}), l2 error "
+          f"{i['fit_l2']:.3g} on the fitted samples, {i['seconds']:.2f} s")
+    print("cross-validated l2 error " + (
+        "not computed (--folds 0)" if l2 is None else
+        f"{l2:.3g} +- {se:.3g} ({i.get('validation', 'held-out samples')}; relative RMS of "
+        "f cos(theta_i) cos(theta_o) at held-out samples, 1 = predicting zero)"))
     return 0
 
 
@@ -710,40 +916,94 @@ def _parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser(
         "convert", formatter_class=fmt,
-        help="convert a MERL .binary file to coefficients (= project --merl)",
-        description="MERL conversion: reads a MERL .binary table (trilinear interpolation) "
-                    "and projects it, exactly as 'scatmodes project --merl FILE'.",
-        epilog="example:\n  scatmodes convert blue-acrylic.binary --order 8 -o blue.h5")
-    c.add_argument("file", metavar="FILE.binary", help="MERL file")
+        help="convert a MERL .binary, an RGL .bsdf or a measurement file to coefficients",
+        description="Turns a measured material into a coefficient matrix (HDF5, "
+                    "compress.save),\nchoosing by the file's content and suffix:\n"
+                    "  MERL .binary  read_merl (trilinear interpolation), projected exactly "
+                    "as\n                'scatmodes project --merl FILE'\n"
+                    "  RGL .bsdf     read_rgl (RGL-EPFL tensor file, RGB or spectral), "
+                    "projected the\n                same way (it is not reciprocal: every "
+                    "ordered pair of directions\n                is sampled); --quantity auto "
+                    "is f_cos, "
+                    "since the stored f grows\n                like 1/cos(theta_o) at grazing "
+                    "angles\n"
+                    "  anything else scattered measurements (a table, CSV or Cornell .brdf, "
+                    "see\n                'scatmodes fit --help'): fitted by least squares "
+                    "as 'scatmodes fit\n                FILE' does with its defaults "
+                    "(--quantity auto is f); for its\n                options (--format, "
+                    "--wavelengths, --channels, --model,\n                "
+                    "--regularization, ...) run 'scatmodes fit' itself",
+        epilog="examples:\n  scatmodes convert blue-acrylic.binary --order 8 -o blue.h5\n"
+               "  scatmodes convert paper_white_rgb.bsdf --order 8 -o paper.h5\n"
+               "  scatmodes convert cayman.brdf --order 6 -o cayman.h5")
+    c.add_argument("file", metavar="FILE",
+                   help="a MERL .binary, an RGL .bsdf or a measurement text file")
     _add_basis(c)
-    c.add_argument("--tol", type=_positive, default=1e-3,
-                   help="quadrature tolerance (default %(default)s)")
+    c.add_argument("--tol", type=_positive, default=_CONVERT_TOL,
+                   help="quadrature tolerance of the projection, MERL and RGL (default "
+                        "%(default)s)")
     c.add_argument("--method", choices=("quadrature", "montecarlo", "lstsq"),
-                   default="quadrature", help="projection method (default %(default)s)")
+                   default=_CONVERT_METHOD,
+                   help="projection method, MERL and RGL (default %(default)s)")
     c.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
     c.set_defaults(func=_convert)
 
     f = sub.add_parser(
         "fit", formatter_class=fmt,
-        help="least-squares fit to a table of measurements, write HDF5",
-        description="Fits a reciprocal coefficient matrix to scattered measurements "
-                    "(project.read_table + project.fit). TABLE rows: theta_i phi_i theta_o "
-                    "phi_o (degrees) and one value or R G B (1/sr), separated by spaces or "
-                    "commas; '#' starts a comment. By default the fit is regularised with a "
-                    "penalty on high degrees whose weight 10-fold cross-validation on the "
-                    "measured pairs chooses (0, the plain least-squares fit, unless "
-                    "regularising predicts held-out pairs clearly better). Prints the "
-                    "condition number, the rank, the residual, the chosen weight and the "
-                    "cross-validated error.",
+        help="fit coefficients or a compact model to measurements, write HDF5",
+        description="Fits scattered measurements read by "
+                    "project.measured.read_measurements. TABLE\nis one of (--format; "
+                    "detected by default):\n"
+                    "  table    rows theta_i phi_i theta_o phi_o (degrees) and one value or R "
+                    "G B\n           (1/sr), spaces or commas, '#' comments\n"
+                    "  csv      a header row naming the angle columns (theta_i, phi_i, "
+                    "theta_o,\n           phi_o or aliases, a unit such as [deg] allowed), an "
+                    "optional\n           weight column, one column per channel (wavelengths "
+                    "like 450nm\n           make the data spectral); --angles for angle "
+                    "columns without a unit\n"
+                    "  cornell  the Cornell / pbrt-v2 .brdf format (wavelength count, "
+                    "wavelengths,\n           then theta_i phi_i theta_o phi_o in radians "
+                    "and a value\n           per wavelength)\n"
+                    "--channels keeps some channels, --wavelengths interpolates spectral data "
+                    "to the\ngiven wavelengths (after --channels).\n\n"
+                    "Without --model: a reciprocal coefficient matrix by least squares "
+                    "(project.fit),\nregularised with a penalty on high degrees whose weight "
+                    "10-fold cross-validation\non the measured pairs chooses (0, the plain "
+                    "fit, unless regularising predicts\nheld-out pairs clearly better). "
+                    "Prints the condition number, the rank, the\nresidual, the chosen weight "
+                    "and the cross-validated error, with that of a\nLambertian fit.\n\n"
+                    "With --model FAMILY: a compact parametric model (project.fit_model; not "
+                    "'factored',\nwhich needs a BRDF evaluable anywhere). Prints the "
+                    "parameters and the l2 error\ncross-validated on held-out samples (10 "
+                    "folds by default) with its standard error.\n\n"
+                    "Library warnings (e.g. a fit that predicts held-out samples no better "
+                    "than zero)\nprint on stderr.",
         epilog="examples:\n  scatmodes fit brick.txt --order 8 -o brick.h5\n"
                "  scatmodes fit brick.txt --order 8 --regularization 0 -o plain.h5\n"
                "  scatmodes fit paint.csv --basis harmonics --order 6 --no-isotropic "
-               "--regularization 1e-6 -o paint.h5")
-    f.add_argument("table", metavar="TABLE", help="text file of measurements")
+               "--regularization 1e-6 -o paint.h5\n"
+               "  scatmodes fit cayman.brdf --wavelengths 450,550,650 --order 6 -o cayman.h5\n"
+               "  scatmodes fit cayman.brdf --wavelengths 450,550,650 --model lambert+ggx "
+               "-o cayman-ggx.h5\n"
+               "  scatmodes fit scan.csv --angles radians --channels R --model lafortune "
+               "--lobes 2 --restarts 8 -o scan.h5")
+    f.add_argument("table", metavar="TABLE",
+                   help="measurement file: a table, CSV or Cornell .brdf")
+    f.add_argument("--format", choices=("auto", *_FIT_FORMATS), default="auto",
+                   help="the file's format (default %(default)s: by extension and content)")
+    f.add_argument("--angles", choices=_FIT_ANGLES, default=None,
+                   help="unit of CSV angle columns whose name states none (default: the unit "
+                        "of the other columns, else degrees if any theta exceeds pi/2)")
+    f.add_argument("--channels", type=_channel_list, default=None, metavar="C[,C...]",
+                   help="keep these channels, by name or index (e.g. R,G or '450 nm' or 0,2)")
+    f.add_argument("--wavelengths", type=_wavelength_list, default=None, metavar="NM[,NM...]",
+                   help="spectral data: interpolate linearly to these wavelengths in nm "
+                        "(e.g. 450,550,650), inside the measured range")
     _add_basis(f, kinds=("zernike", "harmonics", "harmonics-even"), quantity="f",
                quantities=("f_cos", "f"))
-    f.add_argument("--isotropic", action=argparse.BooleanOptionalAction, default=True,
-                   help="fit only the isotropic blocks (default: yes)")
+    f.add_argument("--isotropic", action=argparse.BooleanOptionalAction, default=None,
+                   help="fit only the isotropic blocks (default: yes, unless the file states "
+                        "anisotropic data)")
     f.add_argument("--regularization", type=_fit_regularization, default="auto",
                    metavar="{auto,gcv,leave-incidence-out,LAMBDA}",
                    help="how to choose the Tikhonov weight (auto: 10-fold cross-validation "
@@ -755,9 +1015,26 @@ def _parser() -> argparse.ArgumentParser:
                    help="the Tikhonov penalty: identity (the L2 norm of the fit) or degree "
                         "(high degrees, see project.fit); default degree for the automatic "
                         "choices, identity for a number")
+    m = f.add_argument_group(
+        "compact model", "--model replaces the modal fit: --basis, --order, --quantity, "
+                         "--isotropic, --regularization and --penalty do not apply")
+    m.add_argument("--model", type=_family, default=None, metavar="FAMILY",
+                   help=f"fit a parametric family: {', '.join(_FIT_FAMILIES)}")
+    m.add_argument("--restarts", type=_count, default=None, metavar="N",
+                   help="starting points of the non-linear fit, the best kept (default 4; "
+                        "more for several lobes)")
+    m.add_argument("--seed", type=_order, default=None,
+                   help="seed of the starting points and of the folds (default 0)")
+    m.add_argument("--lobes", type=_count, default=None, metavar="N",
+                   help="lobes of lafortune (default 1) and dsbrdf (default 3)")
+    m.add_argument("--max-nfev", type=_count, default=None, metavar="N",
+                   help="function evaluations per restart (default scipy's, 100 x the "
+                        "number of parameters)")
+    m.add_argument("--folds", type=_order, default=None, metavar="K",
+                   help="folds of the cross-validated error, 0 to skip it (default 10)")
     f.add_argument("-o", "--output", required=True, metavar="OUT.h5",
                    help=f"HDF5 file to write ({', '.join(HDF5_SUFFIXES)})")
-    f.set_defaults(func=_fit)
+    f.set_defaults(func=_fit, modal_defaults={n: f.get_default(n) for n in _MODAL_OPTIONS})
 
     s = sub.add_parser(
         "simulate", formatter_class=fmt,

@@ -4,6 +4,7 @@ errors (status 2, no traceback) for each class of user error."""
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -571,3 +572,235 @@ def test_study_dask_options(tmp_path, capsys):
     line = one_line_error(capsys, "study", "--stability", "--small", "--scheduler",
                           "tcp://127.0.0.1:9", "--out", str(tmp_path / "t"))
     assert "cannot connect" in line
+
+
+# -- measurement files: fit and convert --------------------------------------------------------
+BSDF = Path(__file__).resolve().parents[2] / "data" / "paper_white_rgb.bsdf"
+#: Lambert + GGX (Schlick Fresnel) of the synthetic measurements, at 450, 550 and 650 nm.
+GGX = {"kd": [0.5, 0.4, 0.3], "ks": [0.6, 0.6, 0.6], "alpha": 0.3, "f0": 0.5}
+
+
+@pytest.fixture
+def ggx_samples(rng):
+    """300 exact samples of FittedModel("lambert+ggx", GGX) at random pairs, theta < 78 deg."""
+    from basis import from_angles
+    from project import FittedModel, Measurements
+
+    n = 300
+    wi = from_angles(np.arccos(rng.uniform(0.2, 1.0, n)), rng.uniform(0, 2 * np.pi, n))
+    wo = from_angles(np.arccos(rng.uniform(0.2, 1.0, n)), rng.uniform(0, 2 * np.pi, n))
+    values = FittedModel("lambert+ggx", GGX).eval(wi, wo)
+    return Measurements(wi, wo, values, wavelengths=[450.0, 550.0, 650.0], isotropic=True,
+                        name="ggx")
+
+
+def write(tmp_path, meas, fmt, name="ggx"):
+    """Write ``meas`` as csv (.csv), table (.txt, no wavelengths) or cornell (.brdf)."""
+    from project import Measurements
+    from project.measured import write_measurements
+
+    suffix = {"csv": ".csv", "table": ".txt", "cornell": ".brdf"}[fmt]
+    if fmt == "table":
+        meas = Measurements(meas.wi, meas.wo, meas.values, isotropic=meas.isotropic)
+    return write_measurements(tmp_path / f"{name}{suffix}", meas, fmt)
+
+
+def test_fit_options_match_the_library():
+    from compress.cli import commands
+    from project.fitting import FAMILIES
+    from project.measured import MERL_SHAPE
+    from project.measured.tables import ANGLE_UNITS, MEASUREMENT_FORMATS
+
+    assert commands._FIT_FAMILIES == tuple(f for f in FAMILIES if f != "factored")
+    assert commands._FIT_FORMATS == MEASUREMENT_FORMATS
+    assert commands._FIT_ANGLES == ANGLE_UNITS
+    assert commands._MERL_HEADER == np.array(MERL_SHAPE[1:], dtype="<i4").tobytes()
+
+
+@pytest.mark.parametrize("fmt", ["csv", "table", "cornell"])
+def test_fit_reads_each_format(tmp_path, capsys, ggx_samples, fmt):
+    from basis import HemiZernike
+    from project import fit
+
+    path = write(tmp_path, ggx_samples, fmt)
+    status, out, err = run(capsys, "fit", str(path), "--order", "3", "-o",
+                           str(tmp_path / "f.h5"))
+    assert status == 0, err
+    assert f"({fmt} format, by " in out and "300 samples" in out
+    assert re.search(r"validation error [0-9.e-]+ % \(relative RMS at held-out pairs\), "
+                     r"[0-9.e-]+ % for a Lambertian fit", out)
+    cm = load(tmp_path / "f.h5")
+    assert cm.channels == 3 and cm.info["source"] == f"fit to {path.name}"
+    # the library on the same samples: values round-trip exactly, the directions to a few
+    # ulp (rebuilt from the written angles); the condition number is ~5
+    ref = fit(ggx_samples, HemiZernike(3))
+    np.testing.assert_allclose(cm.matrix, ref.matrix, rtol=0, atol=1e-12)
+
+
+def test_fit_wavelengths_and_channels(tmp_path, capsys, ggx_samples):
+    from basis import HemiZernike
+    from project import fit
+
+    path = write(tmp_path, ggx_samples, "cornell")
+    status, out, err = run(capsys, "fit", str(path), "--wavelengths", "500,600", "--order",
+                           "2", "--regularization", "0", "-o", str(tmp_path / "w.h5"))
+    assert status == 0, err
+    cm = load(tmp_path / "w.h5")
+    assert cm.channels == 2
+    # linear interpolation halfway between measured channels, then the same plain fit
+    ref = fit(ggx_samples.at_wavelengths([500.0, 600.0]), HemiZernike(2), regularization=0)
+    np.testing.assert_allclose(cm.matrix, ref.matrix, rtol=0, atol=1e-12)
+    status, _, err = run(capsys, "fit", str(path), "--channels", "650 nm", "--order", "2",
+                         "--regularization", "0", "-o", str(tmp_path / "c.h5"))
+    assert status == 0, err
+    one = load(tmp_path / "c.h5")
+    full = fit(ggx_samples, HemiZernike(2), regularization=0)  # channels solved apart
+    assert one.channels == 1
+    np.testing.assert_allclose(np.squeeze(one.matrix), full.matrix[2], rtol=0, atol=1e-12)
+
+
+def test_fit_model_recovers_lambert_ggx(tmp_path, capsys, ggx_samples):
+    from project import FittedModel
+
+    path = write(tmp_path, ggx_samples, "csv")
+    out_h5 = tmp_path / "m.h5"
+    status, out, err = run(capsys, "fit", str(path), "--wavelengths", "450,550,650",
+                           "--model", "lambert+ggx", "--restarts", "1", "--folds", "3", "-o",
+                           str(out_h5))
+    assert status == 0 and err == "", err
+    assert "FittedModel('lambert+ggx'" in out and "8 parameters (64 bytes)" in out
+    got = re.search(r"cross-validated l2 error ([0-9.e+-]+) \+- ([0-9.e+-]+) \(3-fold CV", out)
+    assert got, out
+    model = load(out_h5)
+    assert isinstance(model, FittedModel) and model.family == "lambert+ggx"
+    assert float(got[1]) == pytest.approx(model.info["l2"], rel=1e-2)  # printed to 3 digits
+    assert float(got[2]) == pytest.approx(model.info["l2_stderr"], rel=1e-2)
+    # exact samples of the family: the fit reaches l2 ~1e-9 and the parameters to ~1e-7
+    # (observed); 1e-5 leaves room for the optimizer's stopping tolerance
+    for name, value in GGX.items():
+        np.testing.assert_allclose(model.params[name], value, rtol=1e-5, atol=0,
+                                   err_msg=name)
+    assert model.info["l2"] < 1e-6
+
+
+def test_fit_warnings_reach_stderr(tmp_path, capsys, rng):
+    from basis import from_angles
+    from project import Measurements
+
+    n = 200  # pure noise: nothing predicts held-out samples better than zero
+    wi = from_angles(np.arccos(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    wo = from_angles(np.arccos(rng.uniform(0, 1, n)), rng.uniform(0, 2 * np.pi, n))
+    path = write(tmp_path, Measurements(wi, wo, rng.normal(0.0, 1.0, n)), "csv", "noise")
+    status, _, err = run(capsys, "fit", str(path), "--order", "2", "-o", str(tmp_path / "a.h5"))
+    assert status == 0
+    assert "scatmodes fit: warning: fit predicts held-out samples no better than zero" in err
+    # values < 0 everywhere: a model >= 0 is at best as far from them as zero is (l2 >= 1)
+    path = write(tmp_path, Measurements(wi, wo, -0.1 - np.abs(rng.normal(0.0, 1.0, n))), "csv",
+                 "negative")
+    status, _, err = run(capsys, "fit", str(path), "--model", "lambert+ggx", "--restarts", "1",
+                         "--folds", "3", "-o", str(tmp_path / "b.h5"))
+    assert status == 0
+    assert "scatmodes fit: warning: fit_model('lambert+ggx') predicts the held-out" in err
+
+
+def test_convert_rgl(tmp_path, capsys):
+    from basis import from_angles
+    from project.measured import read_rgl
+
+    status, out, err = run(capsys, "convert", str(BSDF), "--order", "2", "-o",
+                           str(tmp_path / "paper.h5"))
+    assert status == 0 and err == "", err
+    assert out.startswith(f"wrote {tmp_path / 'paper.h5'}: RGLBRDF(name='paper_white_rgb'")
+    assert "quantity f_cos" in out  # auto: f grows like 1 / cos(theta_o) at grazing angles
+    cm = load(tmp_path / "paper.h5")
+    assert cm.quantity == "f_cos" and cm.channels == 3
+    # albedo at normal incidence against a product Gauss rule over w_o (64 x 128 nodes; 256 x
+    # 512 agrees to 6e-6): the order-2 expansion is 0.8 % off (observed 0.0083)
+    x, w = np.polynomial.legendre.leggauss(64)
+    mu, phi = 0.5 * (x + 1.0), (np.arange(128) + 0.5) * np.pi / 64
+    wo = from_angles(np.arccos(np.repeat(mu, 128)), np.tile(phi, 64))
+    wi = np.broadcast_to([0.0, 0.0, 1.0], wo.shape)
+    f = read_rgl(BSDF).eval(wi, wo)
+    albedo = (f * (np.repeat(0.5 * w * mu, 128) * np.pi / 64)[:, None]).sum(axis=0)
+    np.testing.assert_allclose(cm.albedo([0.0, 0.0, 1.0]), albedo, rtol=0, atol=0.015)
+
+
+def test_convert_measurements_is_the_fit(tmp_path, capsys, ggx_samples):
+    path = write(tmp_path, ggx_samples, "cornell")
+    status, out, err = run(capsys, "convert", str(path), "--order", "2", "-o",
+                           str(tmp_path / "c.h5"))
+    assert status == 0, err
+    assert "measurements: fitted by least squares as 'scatmodes fit' does" in out
+    status, _, err = run(capsys, "fit", str(path), "--order", "2", "-o", str(tmp_path / "f.h5"))
+    assert status == 0, err
+    c, f = load(tmp_path / "c.h5"), load(tmp_path / "f.h5")
+    assert c.quantity == "f"  # convert's auto is fit's default
+    np.testing.assert_array_equal(c.matrix, f.matrix)
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["fit", "{tmp}/foreign.csv"], "TABLE '{tmp}/foreign.csv': line 1: the header must name "
+                                   "the angle columns theta_i, phi_i, theta_o, phi_o"),
+    (["fit", "{bsdf}"], "TABLE '{bsdf}' is an RGL-EPFL .bsdf file, a BRDF that can be "
+                        "evaluated anywhere rather than scattered measurements: project it "
+                        "with 'scatmodes convert {bsdf} -o OUT.h5'"),
+    (["fit", "{tmp}/m.binary"], "TABLE '{tmp}/m.binary' is a MERL .binary file"),
+    (["fit", "{tmp}/saved.h5"], "TABLE '{tmp}/saved.h5' is an HDF5 file, not measurements"),
+    (["fit", "{tmp}/ggx.csv", "--format", "xml"],
+     "argument --format: invalid choice: 'xml' (choose from 'auto', 'table', 'csv', "
+     "'cornell')"),
+    (["fit", "{tmp}/ggx.csv", "--format", "table"],
+     "TABLE '{tmp}/ggx.csv': line 4, column 1: cell must be a number"),
+    (["fit", "{tmp}/ggx.brdf", "--angles", "degrees"],
+     "the Cornell format holds angles in radians, got angles='degrees'"),
+    (["fit", "{tmp}/ggx.csv", "--angles", "grads"], "argument --angles: invalid choice"),
+    (["fit", "{tmp}/ggx.csv", "--wavelengths", "400,500"],
+     "--wavelengths must lie within the measured range [450, 650] nm of TABLE "
+     "'{tmp}/ggx.csv' (no extrapolation), got 400"),
+    (["fit", "{tmp}/ggx.csv", "--wavelengths", "550,700"], "got 700"),
+    (["fit", "{tmp}/ggx.csv", "--wavelengths", "550,500"],
+     "argument --wavelengths: must be comma-separated wavelengths in nm, > 0 and increasing"),
+    (["fit", "{tmp}/ggx.txt", "--wavelengths", "500"],
+     "--wavelengths needs spectral data: TABLE '{tmp}/ggx.txt' holds the channels R, G, B "
+     "without wavelengths"),
+    (["fit", "{tmp}/ggx.csv", "--channels", "X"],
+     "--channels: channels must be indices or names among ['450 nm', '550 nm', '650 nm'], "
+     "got 'X'"),
+    (["fit", "{tmp}/ggx.csv", "--channels", "0,"], "argument --channels: must be "
+                                                   "comma-separated channel names or indices"),
+    (["fit", "{tmp}/ggx.csv", "--model", "factored"],
+     "argument --model: 'factored' cannot be fitted to measurements: it tabulates a BRDF on "
+     "a dense rule"),
+    (["fit", "{tmp}/ggx.csv", "--model", "phong"],
+     "argument --model: must be one of lambert+ggx, lambert+beckmann, lafortune, dsbrdf, "
+     "rr8807, got 'phong'"),
+    (["fit", "{tmp}/ggx.csv", "--restarts", "2", "--folds", "3"],
+     "--restarts, --folds apply to --model FAMILY"),
+    (["fit", "{tmp}/ggx.csv", "--model", "lambert+ggx", "--order", "4"],
+     "--order applies to the modal fit (a coefficient matrix), not to --model lambert+ggx"),
+    (["fit", "{tmp}/ggx.csv", "--model", "lambert+ggx", "--lobes", "2"],
+     "--lobes applies to --model lafortune and dsbrdf, not to lambert+ggx"),
+    (["convert", "{tmp}/none.bsdf"], "RGL file '{tmp}/none.bsdf' does not exist"),
+    (["convert", "{tmp}/none.csv"], "measurement file '{tmp}/none.csv' does not exist"),
+    (["convert", "{tmp}/bad.bsdf"], "RGL file '{tmp}/bad.bsdf': the required field"),
+    (["convert", "{tmp}/scan.png"], "FILE '{tmp}/scan.png' is neither a MERL .binary, an RGL "
+                                    ".bsdf nor a measurement text file: it holds the byte 0x89"),
+    (["convert", "{tmp}/foreign.csv"], "FILE '{tmp}/foreign.csv': line 1: the header must "
+                                       "name the angle columns"),
+    (["convert", "{tmp}/saved.h5"], "FILE '{tmp}/saved.h5' is an HDF5 file, not a BRDF or "
+                                    "measurements to convert"),
+    (["convert", "{tmp}/ggx.csv", "--tol", "1e-4"],
+     "--tol and --method apply to projecting a MERL or RGL file"),
+])
+def test_measurement_file_errors(tmp_path, capsys, ggx_samples, argv, match):
+    for fmt in ("csv", "table", "cornell"):
+        write(tmp_path, ggx_samples, fmt)
+    (tmp_path / "foreign.csv").write_text("a,b\n1,2\n")
+    (tmp_path / "m.binary").write_bytes(b"\x00" * 12)
+    (tmp_path / "saved.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(64))
+    (tmp_path / "bad.bsdf").write_bytes(b"tensor_file\x00\x01\x00" + bytes(4))
+    (tmp_path / "scan.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    argv = [a.format(tmp=tmp_path, bsdf=BSDF) for a in argv]
+    line = one_line_error(capsys, *argv, "-o", str(tmp_path / "x.h5"))
+    assert match.format(tmp=tmp_path, bsdf=BSDF) in line
+    assert not (tmp_path / "x.h5").exists()
