@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 from ._base import Basis
 from .evaluate import Evaluator, lift_to
 from .modes import HelmholtzModes
-from .validation import as_directions, check_bytes, choice
+from .validation import as_directions, as_float, check_bytes, choice
 from .zernike import HemiZernike
 
 __all__ = ["CoefficientMatrix", "QUANTITIES"]
@@ -138,7 +138,7 @@ class CoefficientMatrix:
         if len(blocks) != len(cos_idx):
             raise ValueError(f"blocks must hold one block per azimuthal order 0..{len(cos_idx) - 1}"
                              f", got {len(blocks)}")
-        arrs = [np.asarray(b, dtype=np.float64) for b in blocks]
+        arrs = [as_float(b, f"blocks[{m}]") for m, b in enumerate(blocks)]
         scalar = arrs[0].ndim == 2
         out = []
         for m, (b, idx) in enumerate(zip(arrs, cos_idx, strict=True)):
@@ -176,7 +176,7 @@ class CoefficientMatrix:
             Which mode set ``modes`` refers to.
         """
         hm = HelmholtzModes(order, isotropic=isotropic)
-        a = np.asarray(modes, dtype=np.float64)
+        a = as_float(modes, "modes")
         if a.shape[-1:] != (hm.size,) or a.ndim > 2:
             raise ValueError(f"modes must have shape ({hm.size},) or (channels, {hm.size}) for "
                              f"{hm!r}, got shape {a.shape}")
@@ -469,8 +469,12 @@ class CoefficientMatrix:
 
 def _as_matrix(matrix: ArrayLike, size: int) -> NDArray[np.float64]:
     try:
-        m = np.array(matrix, dtype=np.float64)
-    except (TypeError, ValueError):
+        m = np.array(as_float(matrix, "matrix"), dtype=np.float64)
+    except TypeError as exc:
+        if "must be real" in str(exc):  # complex values: as_float's message
+            raise
+        raise TypeError(f"matrix must be an array of floats, got {type(matrix).__name__}") from None
+    except ValueError:
         raise TypeError(f"matrix must be an array of floats, got {type(matrix).__name__}") from None
     if m.ndim not in (2, 3) or m.shape[-2:] != (size, size):
         raise ValueError(f"matrix must have shape ({size}, {size}) or (channels, {size}, {size}) "

@@ -51,8 +51,24 @@ def check_bytes(nbytes: float, what: str) -> None:
         raise MemoryError(
             f"{what} would need {nbytes / 2**30:.3g} GiB, more than the limit of "
             f"{MAX_BYTES / 2**30:.3g} GiB (basis.validation.MAX_BYTES); "
-            "use a lower order or work on fewer points at a time"
+            "use a lower order or work on fewer points at a time, or, on a machine with "
+            "the memory, raise the limit: basis.validation.MAX_BYTES = <bytes>"
         )
+
+
+def as_float(value: ArrayLike, name: str) -> NDArray[np.float64]:
+    """Return ``value`` as a float64 array, refusing complex numbers with a TypeError.
+
+    numpy would drop the imaginary part with only a ``ComplexWarning``; a complex input is
+    almost always a bug upstream (a square root of a negative number, an FFT's output), so it
+    is refused, zero imaginary parts included: pass ``.real`` to mean the real part. Other
+    conversion failures (text, ragged lists) are left to numpy's TypeError or ValueError.
+    """
+    a = value if isinstance(value, np.ndarray) else np.asarray(value)
+    if a.dtype.kind == "c":
+        raise TypeError(f"{name} must be real (float), got {a.dtype} values; numpy would drop "
+                        f"their imaginary part: pass {name}.real if that is what you mean")
+    return np.asarray(a, dtype=np.float64)
 
 
 def dask_client(client: object, caller: str) -> None:
@@ -93,8 +109,13 @@ def as_directions(
         If True, also require z >= 0 (within rounding, -1e-12).
     """
     try:
-        d = np.asarray(dirs, dtype=np.float64)
-    except (TypeError, ValueError):
+        d = as_float(dirs, name)
+    except TypeError as exc:
+        if "must be real" in str(exc):  # complex values: as_float's message
+            raise
+        raise TypeError(f"{name} must be an array of floats with shape (..., 3), "
+                        f"got {type(dirs).__name__}") from None
+    except ValueError:
         raise TypeError(f"{name} must be an array of floats with shape (..., 3), "
                         f"got {type(dirs).__name__}") from None
     if d.ndim == 0 or d.shape[-1] != 3:

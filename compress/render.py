@@ -23,7 +23,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from basis import CoefficientMatrix
-from basis.validation import as_directions
+from basis.validation import as_directions, check_bytes
 
 __all__ = ["render_sphere", "tonemap"]
 
@@ -36,6 +36,12 @@ _CHUNK = 1 << 16
 #: from a fallback axis: the projection T - (T.n) n loses relative accuracy ~ 1e-16 / |t|, so
 #: above it the frame's direction is good to ~1e-8.
 _POLE = 1e-8
+
+
+#: float64 numbers per pixel alive at the peak of :func:`render_sphere`, besides 3 per channel
+#: (the BRDF values, the radiance and the image): the normal, the tangent frame, both
+#: directions in it, the disc coordinates and the masks.
+_PIXEL_FLOATS = 24
 
 
 def render_sphere(brdf: object, light: ArrayLike, *, size: int = 256,
@@ -117,6 +123,10 @@ def render_sphere(brdf: object, light: ArrayLike, *, size: int = 256,
     tan = _nonzero(tangent, "tangent")
     size = _size(size)
     e = _intensity(intensity)
+    ch = getattr(brdf, "channels", 1)
+    ch = ch if isinstance(ch, int) and ch > 0 else 1
+    check_bytes(8.0 * size * size * (_PIXEL_FLOATS + 3 * ch),
+                f"rendering {brdf!r} on a {size} x {size} image")
 
     right, up = _camera(view)
     c = -1.0 + (2.0 * np.arange(size) + 1.0) / size

@@ -96,10 +96,12 @@ numbers it checks, from the metadata alone,
   (versions other than :data:`READABLE_VERSIONS`: upgrade the library);
 - the type and range of every attribute (strings, integers, flags; orders up to the basis'
   ``max_order``; ``scalar`` only with 1 channel);
-- the links: soft and external links are refused (a scatmodes file is self-contained, and a
-  link may point at another file or another part of this one);
-- every dataset: a real (hard-linked) dataset, not virtual, without external storage, with
-  no filter other than the checksum, of the declared floating-point dtype, of the exact
+- the indirections of :mod:`project.hdf5`, anywhere in the file: soft, external and
+  user-defined links, virtual datasets, external storage and references are refused (a
+  scatmodes file is self-contained, and each of them may point at another file or another
+  part of this one);
+- every dataset: a real (hard-linked) dataset with no filter other than the checksum,
+  of the declared floating-point dtype, of the exact
   shape that the basis kind, order and channels imply, and fully stored in the file;
 - the size: the coefficients that the claimed order and channels imply must fit in the
   file, so a small file that claims a huge order is refused at once, before any basis is
@@ -141,6 +143,7 @@ from numpy.typing import NDArray
 
 import basis
 from basis import CoefficientMatrix
+from project.hdf5 import Indirection, check_dataset, check_links, check_self_contained
 from project.io import atomic_path
 
 __all__ = ["CONTENTS", "FORMAT", "READABLE_VERSIONS", "SCHEMA_VERSION", "load", "save"]
@@ -546,7 +549,7 @@ class _Reader:
                            f"(scatmodes {_version()}) reads schema versions "
                            f"{', '.join(map(str, READABLE_VERSIONS))}: upgrade scatmodes to "
                            "read it")
-        self.links(f, "/")
+        self.self_contained()
         return reader(self)
 
     # -- attributes -------------------------------------------------------------------------
@@ -620,24 +623,20 @@ class _Reader:
 
     # -- links, groups, datasets ------------------------------------------------------------
     def links(self, g: h5py.Group, where: str) -> list[str]:
-        """Names in ``g``, refusing soft and external links."""
+        """Names in ``g``, refusing soft, external and user-defined links."""
         try:
-            names = list(g)
-            links = [g.get(key, getlink=True) for key in names]
+            return check_links(g)
+        except Indirection as exc:
+            self.refuse(str(exc))
         except _LOW_LEVEL as exc:
             self.damaged(f"the members of {where} cannot be listed ({_one_line(exc)})")
-        for key, link in zip(names, links, strict=True):
-            path = f"{where.rstrip('/')}/{key}"
-            if isinstance(link, h5py.ExternalLink):
-                self.refuse(f"{path} is an external link to {link.filename!r}:{link.path!r}; "
-                            "scatmodes files are self-contained and external links are not "
-                            "followed")
-            if isinstance(link, h5py.SoftLink):
-                self.refuse(f"{path} is a soft link to {link.path!r}; scatmodes files hold "
-                            "their data in place and soft links are not followed")
-            if not isinstance(link, h5py.HardLink):
-                self.damaged(f"{path} is a link of unknown type {type(link).__name__}")
-        return names
+
+    def self_contained(self) -> None:
+        """Refuse every indirection of :mod:`project.hdf5` anywhere in the file."""
+        try:
+            check_self_contained(self.f, filters=None)  # filters: see dataset
+        except Indirection as exc:
+            self.refuse(str(exc))
 
     def group(self, g: h5py.Group, key: str) -> h5py.Group:
         obj = self.member(g, key)
@@ -664,14 +663,11 @@ class _Reader:
         path = f"{g.name.rstrip('/')}/{key}"
         if not isinstance(d, h5py.Dataset):
             self.damaged(f"{path} must be a dataset, got {_kind(d)}")
-        if d.is_virtual:
-            self.refuse(f"{path} is a virtual dataset (its data live elsewhere); scatmodes "
-                        "files are self-contained")
+        try:
+            check_dataset(d, filters=None)  # the filters: below
+        except Indirection as exc:
+            self.refuse(str(exc))
         plist = d.id.get_create_plist()
-        if plist.get_external_count():
-            self.refuse(f"{path} keeps its data in external file(s) "
-                        f"{[x[0] for x in d.external or []]!r}; scatmodes files are "
-                        "self-contained")
         filters = [plist.get_filter(i)[0] for i in range(plist.get_nfilters())]
         if any(x != h5py.h5z.FILTER_FLETCHER32 for x in filters):
             self.damaged(f"{path} uses HDF5 filters {filters}; scatmodes stores numbers "

@@ -125,8 +125,25 @@ def unknowns(basis: Basis, isotropic: bool = True) -> Unknowns:
     return _layout(basis, _flag(isotropic, "isotropic"))
 
 
+def _count(basis: Basis, isotropic: bool) -> int:
+    """Return the unknowns of :func:`_layout`, counted from the block sizes (no allocation)."""
+    if not isotropic:
+        return basis.size * (basis.size + 1) // 2
+    return sum(c.size * (c.size + 1) // 2 for c in basis.azimuthal_blocks().cos)
+
+
+#: Bytes per unknown of :func:`_layout`: seven int64 index arrays and the float multiplicity,
+#: plus numpy's temporaries while building them (the upper-triangle indices and the
+#: concatenated blocks).
+_LAYOUT_BYTES = 8 * 8 * 2
+
+
 def _layout(basis: Basis, isotropic: bool) -> Unknowns:
     size = basis.size
+    # before any index array: HemiZernike(200), isotropic=False has 206 million unknowns
+    check_bytes(_LAYOUT_BYTES * _count(basis, isotropic),
+                f"the index arrays of {_count(basis, isotropic)} unknowns "
+                f"({'isotropic' if isotropic else 'general'} {basis!r})")
     if not isotropic:
         r, c = np.triu_indices(size)
         none = np.full(r.size, size, dtype=np.int64)
@@ -501,8 +518,7 @@ def fit(
     keep = w > 0
     wi, wo, y, w = wi[keep], wo[keep], y[keep], w[keep]
     samples = int(wi.shape[0])
-    lay = _layout(basis, isotropic)
-    unknowns = lay.count
+    unknowns = _count(basis, isotropic)  # closed form: the index arrays come after the check
     kind = "isotropic" if isotropic else "general"
     if samples == 0 or (samples < unknowns and how == "given" and lam == 0.0):
         raise ValueError(
@@ -512,6 +528,7 @@ def fit(
     check_bytes(_fit_bytes(samples, unknowns, basis.size, how, pen),
                 f"fitting {unknowns} unknowns to {samples} samples (design matrix, its SVDs "
                 "and square matrices of the unknowns)")
+    lay = _layout(basis, isotropic)
     if quantity == "f_cos":
         y = y * (wi[:, 2] * wo[:, 2])[:, None]
     sw = np.sqrt(w)
@@ -606,8 +623,8 @@ def _fit_bytes(samples: int, unknowns: int, size: int, how: str, pen: str) -> fl
     rank = min(samples, unknowns)
     copies = _DESIGN_COPIES if how == "given" and pen == "identity" else _AUTO_COPIES
     square = (3 * unknowns + 2 * rank) * unknowns if pen == "degree" else 0
-    return 8.0 * (copies * samples * unknowns + 2 * samples * (size + 1) + 2 * rank * unknowns
-                  + square)
+    return (8.0 * (copies * samples * unknowns + 2 * samples * (size + 1) + 2 * rank * unknowns
+                   + square) + _LAYOUT_BYTES * unknowns)
 
 
 def _svd(a: NDArray) -> tuple[NDArray, NDArray, NDArray]:

@@ -174,6 +174,17 @@ def project(
                          "quantity='f' their coefficients int b_j b_k / cos(theta) diverge")
     if not (isinstance(tol, float | int) and 0 < tol < 1):
         raise ValueError(f"tol must be a number in (0, 1), got {tol!r}")
+    # the result and its working copies, before any node is placed or the BRDF evaluated
+    # (the rules then check each chunk of evaluations on their own)
+    ch = int(brdf.channels)
+    if iso:
+        k = np.bincount(basis.azimuthal[basis.azimuthal >= 0])
+        nz = basis.order + 2  # the first z rule, (nz, nz, m) azimuthal transforms
+        need = 8.0 * ch * (_RESULT_COPIES * float(np.sum(k * k)) + nz * nz * k.size)
+    else:
+        need = 8.0 * ch * _RESULT_COPIES * float(basis.size) ** 2
+    check_bytes(need, f"projecting {brdf!r} on {basis!r} ({ch} channel(s), "
+                      f"{'isotropic blocks' if iso else 'a dense matrix'})")
 
     if method == "quadrature":
         blocks_or_dense, info = _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes,
@@ -207,6 +218,12 @@ def project(
                       "the order, filter (compress.smooth) or change the basis or quantity",
                       RuntimeWarning, stacklevel=2)
     return cm
+
+
+#: Copies of the coefficients alive at the peak of :func:`project`: the sum being built, its
+#: transpose, the asymmetry check, the channel-first copy and CoefficientMatrix's symmetric
+#: part and checks.
+_RESULT_COPIES = 6
 
 
 def default_quantity(basis: Basis, brdf: Any = None) -> str:

@@ -222,12 +222,19 @@ def _format(p: Path) -> Any:
 def _checkpoint(p: Path, fmt: str) -> dict[str, Any]:
     import h5py
 
+    from project.hdf5 import Indirection, check_self_contained
+
     def damaged(what: str) -> ValueError:
         return _Damaged(f"{str(p)!r} is a damaged simulation checkpoint: {what}; run "
                           "simulate again without --resume")
 
     try:
         with h5py.File(p, "r") as f:
+            try:  # links, virtual datasets, ...: the reads below would use other data
+                check_self_contained(f)
+            except Indirection as exc:
+                raise _Damaged(f"{str(p)!r} is a simulation checkpoint that is refused: {exc}"
+                               ) from None
             a = f.attrs
 
             def attr(name: str, kind: type) -> Any:

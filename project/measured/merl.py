@@ -441,8 +441,16 @@ def read_merl(path: str | os.PathLike, *, interpolation: str = "trilinear") -> M
     if bad.any():
         raise ValueError(f"MERL file {str(p)!r} must hold finite values: {int(bad.sum())} are "
                          f"NaN or inf, first at {_first_index(bad)}; the file is damaged")
+    missing = raw < 0
+    empty = np.flatnonzero(missing.all(axis=(1, 2, 3)))
+    if empty.size:
+        c = int(empty[0])
+        raise ValueError(f"MERL file {str(p)!r} holds no valid value in channel {c} "
+                         f"({('red', 'green', 'blue')[c]}): all {raw[c].size} are negative (the "
+                         "mark of a missing cell); the file is damaged or holds no measurement "
+                         "of that channel")
     table = raw * MERL_SCALE[:, None, None, None]
-    table[raw < 0] = np.nan
+    table[missing] = np.nan
     name = p.name[:-len(".binary")] if p.name.endswith(".binary") else p.name
     return MERLBRDF(table, interpolation=interpolation, name=name, path=p)
 

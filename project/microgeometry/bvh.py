@@ -79,6 +79,17 @@ _BUILDS = ("sah", "median")
 _OBJ_INDEX = re.compile(r"[+-]?[0-9]+")
 #: a v or f keyword glued to its first number ("v1.0"): a damaged record, not a new keyword
 _OBJ_GLUED = re.compile(r"[vf][-+.0-9]")
+#: a number as C's strtod reads it in an OBJ file: ASCII digits only (Python's float would
+#: also take "1_0" and other scripts' digits); inf and nan are read, then refused as such
+_OBJ_NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
+                         r"|inf|infinity|nan)", re.ASCII | re.IGNORECASE)
+#: the keywords of the OBJ format (Wavefront, Appendix B1); they are case-sensitive, so a
+#: line starting with one of them in other letter case is damage, not an unknown keyword
+_OBJ_KEYWORDS = frozenset(
+    "v vt vn vp cstype deg bmat step p l f curv curv2 surf parm trim hole scrv sp end con g s "
+    "mg o bevel c_interp d_interp lod usemtl mtllib shadow_obj trace_obj ctech stech maplib "
+    "usemap call csh".split())
+_OBJ_FOLDED = {k.lower(): k for k in _OBJ_KEYWORDS}
 
 
 class Mesh:
@@ -151,9 +162,12 @@ class Mesh:
         Face entries may be ``i``, ``i/t``, ``i//n`` or ``i/t/n`` (only i is used; negative
         i counts back from the last vertex read so far); polygons with more than three
         corners are split into a fan around their first corner. ``v`` lines take their first
-        three numbers (a fourth weight or trailing colours are ignored). Every other line
-        (``vt``, ``vn``, ``o``, ``g``, ``usemtl``, unknown keywords, ...) is ignored by its
-        first token, as are comments from ``#`` to the end of a line; a line ending in
+        three numbers (a fourth weight or trailing colours are ignored), written as C's
+        ``strtod`` reads them (ASCII digits, no ``_``). Every other line (``vt``, ``vn``,
+        ``o``, ``g``, ``usemtl``, unknown keywords, ...) is ignored by its first token,
+        except a known keyword in other letter case (``V``, ``Usemtl``: OBJ keywords are
+        case-sensitive, and skipping a ``V`` line would shift every later vertex), as are
+        comments from ``#`` to the end of a line; a line ending in
         ``\`` continues on the next one (Wavefront, "Object Files (.obj)", Appendix B1 of
         the Advanced Visualizer manual). A UTF-8 byte-order mark is skipped and bytes that
         are not UTF-8 are tolerated outside ``v`` and ``f`` lines (comments and names often
@@ -165,7 +179,8 @@ class Mesh:
             Naming the file and line: a ``v`` line without three finite numbers, an ``f``
             line with fewer than three corners or an index that is not an integer, is 0 or
             refers to a vertex the file does not define, a keyword glued to its number
-            (``v1.0 2 3``), a file cut off in the middle of a record, no ``f`` line at all,
+            (``v1.0 2 3``) or in the wrong letter case (``V 1 2 3``), a file cut off in
+            the middle of a record, no ``f`` line at all,
             or degenerate triangles.
         OSError
             If the file cannot be read.
@@ -205,10 +220,7 @@ class Mesh:
                 continue
             key = parts[0]
             if key == "v":
-                try:
-                    xyz = tuple(float(x) for x in parts[1:4])
-                except ValueError:
-                    xyz = ()
+                xyz = tuple(float(x) for x in parts[1:4] if _OBJ_NUMBER.fullmatch(x))
                 if len(xyz) != 3:
                     raise fail(lineno, "v line must hold three numbers", line)
                 if not all(map(math.isfinite, xyz)):
@@ -232,6 +244,10 @@ class Mesh:
                     face_lines.append(lineno)
             elif _OBJ_GLUED.match(key):
                 raise fail(lineno, f"keyword {key[0]!r} must be followed by a space", line)
+            elif key not in _OBJ_KEYWORDS and key.lower() in _OBJ_FOLDED:
+                raise fail(lineno, f"keyword {key!r} differs from the OBJ keyword "
+                                   f"{_OBJ_FOLDED[key.lower()]!r} only in case (keywords are "
+                                   "case-sensitive)", line)
         if not faces:
             raise ValueError(f"{name} must contain at least one f line, found none")
         # positive indices may refer forward, so they are checked once every v line is read

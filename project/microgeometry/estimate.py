@@ -962,6 +962,8 @@ def _load(path: Path, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], int
     """Read and check a checkpoint: every failure is one ValueError naming the file."""
     import h5py
 
+    from ..hdf5 import Indirection, check_self_contained
+
     if not path.is_file():
         raise FileNotFoundError(f"resume must name an existing checkpoint file, got "
                                 f"{str(path)!r}")
@@ -978,9 +980,20 @@ def _load(path: Path, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], int
             fmt = f.attrs.get("format")
         except Exception:  # an unreadable attribute table: not a checkpoint
             fmt = None
-        if fmt not in (_FORMAT, _FORMAT_1):
+        if not (isinstance(fmt, str) and fmt in (_FORMAT, _FORMAT_1)):
+            shown = (f"an array of {fmt.dtype} with shape {fmt.shape}"
+                     if isinstance(fmt, np.ndarray) else repr(fmt)[:100])
             raise ValueError(f"{name} is not a simulate checkpoint (its format attribute is "
-                             f"{fmt!r}, expected {_FORMAT!r})")
+                             f"{shown}, expected {_FORMAT!r})")
+        try:
+            # from the metadata alone: links, virtual datasets, external storage, plugin
+            # filters and references would make the reads below use other data
+            check_self_contained(f)
+        except Indirection as err:
+            raise ValueError(f"{name} is refused: {err}; {advice}") from None
+        except Exception as err:  # HDF5's errors on corrupt metadata have many types
+            raise ValueError(f"{name} is damaged ({type(err).__name__}: "
+                             f"{' '.join(str(err).split())}); {advice}") from None
         try:
             got, acc, done, checksum = _read(f, meta, k)
         except _Damaged as err:
@@ -1030,7 +1043,7 @@ def _read(f: Any, meta: dict[str, Any], k: int) -> tuple[dict[str, Any], dict[st
     got["seeds"] = [int(x) for x in seeds]
     done = integer("directions_done", attr("directions_done"))
     checksum = None
-    if f.attrs.get("format") == _FORMAT:
+    if attr("format") == _FORMAT:  # a string: checked by _load
         checksum = attr("sha256")
         if not isinstance(checksum, str):
             raise _Damaged(f"attribute 'sha256' must be text, got {checksum!r}")

@@ -205,6 +205,8 @@ def test_full_sphere_basis_allowed(rng):
     ({"matrix": np.full((6, 6), np.nan)}, ValueError, "matrix must be finite"),
     ({"matrix": "abc"}, TypeError, "matrix must be an array of floats"),
     ({"quantity": "g"}, ValueError, "quantity must be one of 'f', 'f_cos'"),
+    ({"matrix": np.eye(6) * (1 + 1e-3j)}, TypeError,
+     r"matrix must be real \(float\), got complex128"),
 ])
 def test_bad_construction(kwargs, exc, match):
     args = {"basis": HemiZernike(2), "matrix": np.eye(6), "quantity": "f"} | kwargs
@@ -212,8 +214,20 @@ def test_bad_construction(kwargs, exc, match):
         CoefficientMatrix(args["basis"], args["matrix"], args["quantity"])
 
 
+def test_complex_blocks_and_modes_are_refused():
+    # numpy would drop the imaginary part with only a ComplexWarning
+    hz = HemiZernike(2)
+    blocks = [np.eye(k) * 1j for k in (2, 1, 1)]
+    with pytest.raises(TypeError, match=r"blocks\[0\] must be real \(float\), got complex"):
+        CoefficientMatrix.from_blocks(hz, blocks)
+    with pytest.raises(TypeError, match=r"modes must be real \(float\), got complex"):
+        CoefficientMatrix.from_modes(np.zeros(5, dtype=complex), 2)
+
+
 def test_bad_eval():
     cm = lambert_westin(0.5)
+    with pytest.raises(TypeError, match=r"wi must be real \(float\), got complex"):
+        cm.eval([0, 0, 1.0 + 0j], [0, 0, 1.0])
     with pytest.raises(ValueError, match="min_cos must lie in"):
         cm.eval([0, 0, 1.0], [0, 0, 1.0], min_cos=0.0)
     with pytest.raises(ValueError, match=r"wi must have shape \(\.\.\., 3\)"):

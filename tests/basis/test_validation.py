@@ -61,3 +61,22 @@ def test_dask_client_check(monkeypatch):
     with pytest.raises(ImportError, match=r"write_all\(client=...\) needs dask.distributed.*"
                                           r"pip install 'scatmodes\[distributed\]'"):
         dask_client(object(), "write_all")
+
+
+@pytest.mark.parametrize("dirs", [
+    np.array([[0, 0, 1 + 1e-3j]]),
+    [[0, 0, 1j]],
+    np.array([0, 0, 1], dtype=np.complex64),  # imaginary part 0: still not a direction
+])
+def test_complex_directions_are_refused(dirs):
+    # numpy would drop the imaginary part with only a ComplexWarning
+    with pytest.raises(TypeError, match=r"dirs must be real \(float\), got complex"):
+        v.as_directions(dirs)
+
+
+def test_basis_eval_refuses_complex_directions():
+    from basis import HemiZernike, SphericalHarmonics
+
+    for b in (HemiZernike(2), SphericalHarmonics(2)):
+        with pytest.raises(TypeError, match=r"dirs must be real \(float\), got complex128"):
+            b.eval(np.array([[0.6, 0.0, 0.8 + 0.1j]]))

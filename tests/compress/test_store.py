@@ -710,6 +710,28 @@ def _edits(path):
         yield f"del {d}", lambda f, d=d: f.__delitem__(d)
         yield f"{d} -> soft link to {other}", relink(h5py.SoftLink(other))
         yield f"{d} -> external link", relink(h5py.ExternalLink(str(path), d))
+
+        def virtual(f, d=d):
+            shape, dtype = f[d].shape, f[d].dtype
+            layout = h5py.VirtualLayout(shape=shape, dtype=dtype)
+            layout[...] = h5py.VirtualSource(str(path), d, shape=shape)
+            del f[d]
+            f.create_virtual_dataset(d, layout)
+
+        def external_storage(f, d=d):
+            x = f[d][()]
+            raw = path.with_name(path.name + d.replace("/", "_") + ".bin")
+            raw.write_bytes(x.tobytes())
+            del f[d]
+            f.create_dataset(d, shape=x.shape, dtype=x.dtype, external=[(str(raw), 0, x.nbytes)])
+
+        yield f"{d} -> virtual dataset", virtual
+        yield f"{d} -> external storage", external_storage
+        yield f"reference to {d}", lambda f, d=d: f.create_dataset("ref", data=f[d].ref,
+                                                                   dtype=h5py.ref_dtype)
+        yield f"region reference to {d}", lambda f, d=d: f.create_dataset(
+            "ref", data=f[d].regionref[:1], dtype=h5py.regionref_dtype)
+        yield f"attribute reference to {d}", lambda f, d=d: f.attrs.__setitem__("ref", f[d].ref)
         yield f"{d} compressed", lambda f, d=d: _replace(d, data=f[d][()], compression="gzip")(f)
         yield f"{d} nan", fill(np.nan)
         yield f"{d} huge", fill(1.7e308)

@@ -9,6 +9,7 @@ formulas written out here.
 from __future__ import annotations
 
 import os
+import re
 
 import numpy as np
 import pytest
@@ -481,6 +482,28 @@ def test_damaged_file(tmp_path, good_raw, make, match):
     path.write_bytes(make(good_raw))
     with pytest.raises(ValueError, match=match):
         read_merl(path)
+
+
+def _channel_missing(raw: np.ndarray) -> np.ndarray:
+    raw = raw.copy().reshape(MERL_SHAPE)
+    raw[1] = -1.0  # every cell of the green channel marked missing
+    return raw
+
+
+def test_file_with_an_empty_channel(tmp_path, good_raw, capsys):
+    # the API and the command line name the file and the channel (the table check alone
+    # said "channel 1 has none")
+    from compress.cli import main
+
+    path = tmp_path / "green-gone.binary"
+    path.write_bytes(merl_bytes(_channel_missing(good_raw)))
+    match = (r"MERL file '.*green-gone\.binary' holds no valid value in channel 1 \(green\): "
+             r"all 1458000 are negative \(the mark of a missing cell\)")
+    with pytest.raises(ValueError, match=match):
+        read_merl(path)
+    assert main(["project", "--merl", str(path), "--basis", "zernike", "--order", "2",
+                 "-o", str(tmp_path / "out.h5")]) != 0
+    assert re.search(match, capsys.readouterr().err)
 
 
 def test_bad_paths(tmp_path):

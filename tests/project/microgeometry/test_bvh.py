@@ -257,6 +257,15 @@ def test_obj_unknown_keywords_latin1_comments_and_continuations(tmp_path):
     assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
 
 
+def test_obj_number_forms(tmp_path):
+    # the forms of C's strtod that OBJ writers use; inf and nan are read, then refused
+    data = b"v +1 -0. .5\nv 1e0 2E+1 -3.5e-1\nv 0 1 0\nf 1 2 3\n"
+    m = Mesh.from_obj(_obj(tmp_path, data))
+    np.testing.assert_array_equal(m.vertices, [[1, -0.0, 0.5], [1, 20, -0.35], [0, 1, 0]])
+    with pytest.raises(ValueError, match=r"m\.obj:1: v line must hold finite numbers"):
+        Mesh.from_obj(_obj(tmp_path, b"v -Infinity 0 0\n" + _SQUARE))
+
+
 def test_obj_old_mac_line_ends(tmp_path):
     m = Mesh.from_obj(_obj(tmp_path, _SQUARE.replace(b"\n", b"\r")))
     assert m.faces.tolist() == [[0, 1, 2], [0, 2, 3]]
@@ -280,9 +289,20 @@ def test_obj_old_mac_line_ends(tmp_path):
     (b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 1_0\n", 4, r"f line must hold vertex indices"),
     (b"v 0 0 0\nv 1 0 \xe9\nv 1 1 0\nf 1 2 3\n", 2, r"v line must hold three numbers"),
     (b"v 0 0 0\nv 1 0 0\nv 2 0 0\n\nf 1 2 3\n", 5, r"non-degenerate"),
+    # before: skipped as unknown keywords, so the faces pointed at other vertices
+    (b"v 0 0 0\nV 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\n", 2,
+     r"keyword 'V' differs from the OBJ keyword 'v' only in case \(keywords are "
+     r"case-sensitive\)"),
+    (_SQUARE + b"F 1 2 3\n", 7, r"keyword 'F' differs from the OBJ keyword 'f' only in case"),
+    (b"Usemtl m\n" + _SQUARE, 1, r"keyword 'Usemtl' differs from the OBJ keyword 'usemtl'"),
+    # before: read by Python's float as 10.0, 1.0 and 1.0
+    (b"v 0 0 0\nv 1_0 0 0\nv 1 1 0\nf 1 2 3\n", 2, r"v line must hold three numbers"),
+    ("v 0 0 0\nv \u0661 0 0\nv 1 1 0\nf 1 2 3\n".encode(), 2, r"v line must hold three"),
+    ("v 0 0 0\nv \uff11 0 0\nv 1 1 0\nf 1 2 3\n".encode(), 2, r"v line must hold three"),
 ], ids=["20-digit", "past-end", "back-past-start", "cut-face", "cut-corner", "cut-vertex",
         "cut-vertex-after-face", "cut-exponent", "nan", "glued", "latin1-index", "underscore",
-        "latin1-coordinate", "degenerate"])
+        "latin1-coordinate", "degenerate", "uppercase-v", "uppercase-f", "mixed-case-usemtl",
+        "underscore-coordinate", "arabic-indic-digit", "fullwidth-digit"])
 def test_obj_damage_names_file_and_line(tmp_path, data, line, match):
     path = _obj(tmp_path, data)
     if match is None:

@@ -9,6 +9,7 @@ Monte Carlo assertions use k = 5 standard errors unless stated otherwise; seeds 
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -408,6 +409,141 @@ def test_damaged_checkpoints_fuzz(rough, tmp_path):
         check(bytes(blob))
     # 94 of the 309 damaged files are refused; the other flips hit padding and free space
     assert outcomes["refused"] > 60, outcomes
+
+
+def _indirections(path, key, tmp_path):
+    """(label, change) pairs that make dataset ``key`` of a checkpoint take its numbers from
+    elsewhere (one per indirection kind h5py can write, see project.hdf5): the numbers stay
+    the same, so only the indirection itself can be the reason for a refusal."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        data = f[key][()]
+    other = tmp_path / f"other-{key}.h5"
+    with h5py.File(other, "w") as g:
+        g[key] = data
+    raw = tmp_path / f"raw-{key}.bin"
+    raw.write_bytes(np.ascontiguousarray(data).tobytes())
+    arr = np.asarray(data)
+
+    def replace(make):
+        def change(f):
+            del f[key]
+            make(f)
+        return change
+
+    def soft(f):
+        f[f"stash/{key}"] = data
+        f[key] = h5py.SoftLink(f"/stash/{key}")
+
+    def virtual(f):
+        layout = h5py.VirtualLayout(shape=arr.shape, dtype=arr.dtype)
+        layout[...] = h5py.VirtualSource(str(other), key, shape=arr.shape)
+        f.create_virtual_dataset(key, layout)
+
+    def plugin(f):  # filter 32015, optional so that writing skips it
+        dcpl = h5py.h5p.create(h5py.h5p.DATASET_CREATE)
+        dcpl.set_chunk(arr.shape)
+        dcpl.set_filter(32015, h5py.h5z.FLAG_OPTIONAL)
+        space = h5py.h5s.create_simple(arr.shape)
+        h5py.h5d.create(f.id, key.encode(), h5py.h5t.py_create(arr.dtype), space, dcpl=dcpl)
+        f[key][...] = data
+
+    out = [
+        ("soft link", replace(soft)),
+        ("external link", replace(lambda f: f.__setitem__(key, h5py.ExternalLink(str(other),
+                                                                                  key)))),
+        ("object reference", lambda f: f.create_dataset("ref", data=f[key].ref,
+                                                        dtype=h5py.ref_dtype)),
+        ("reference attribute", lambda f: f.attrs.__setitem__("ref", f[key].ref)),
+    ]
+    if arr.ndim:  # HDF5 maps, chunks and stores elsewhere only datasets with dimensions
+        out += [("virtual dataset", replace(virtual)), ("plugin filter", replace(plugin)),
+                ("external storage", replace(lambda f: f.create_dataset(
+                    key, shape=arr.shape, dtype=arr.dtype,
+                    external=[(str(raw), 0, arr.nbytes)]))),
+                ("region reference", lambda f: f.create_dataset(
+                    "ref", data=f[key].regionref[:1], dtype=h5py.regionref_dtype))]
+    return out
+
+
+_REFUSED = {"soft link": r"is a soft link to '/stash/", "external link": r"is an external link",
+            "external storage": r"keeps its data in external file",
+            "object reference": r"/ref holds object references",
+            "reference attribute": r"the attribute /@ref holds object references",
+            "virtual dataset": r"is a virtual dataset",
+            "plugin filter": r"uses the HDF5 filter\(s\) \[32015\]",
+            "region reference": r"/ref holds region references"}
+
+
+def test_checkpoint_indirections_are_refused(rough, tmp_path):
+    # every dataset of a checkpoint, through every indirection: resume refuses them all
+    # (before, it followed them and used the other file's numbers; a format-2 checksum does
+    # not help, as anyone can recompute it); scatmodes info refuses them too
+    import h5py
+
+    from compress.cli.info import describe
+
+    path = tmp_path / "good.h5"
+    args, _ = _small_checkpoint(rough, path)
+    with h5py.File(path, "r") as f:
+        keys = sorted(f)
+    data = path.read_bytes()
+    bad = tmp_path / "bad.h5"
+    kinds, loaded = set(), []
+    for key in keys:
+        for label, change in _indirections(path, key, tmp_path):
+            bad.write_bytes(data)
+            _alter(bad, change)
+            kinds.add(label)
+            want = r"resume file '.*bad\.h5' is refused: .*" + _REFUSED[label]
+            try:
+                with pytest.raises(ValueError, match=want):
+                    _resume(args, bad)
+                with pytest.raises(ValueError, match=r"'.*bad\.h5' .*" + _REFUSED[label]):
+                    describe(bad)
+            except (AssertionError, pytest.fail.Exception) as err:
+                loaded.append(f"{key} {label}: {str(err)[:300]}")
+    assert kinds == set(_REFUSED)
+    assert not loaded, "\n".join(loaded)
+
+
+def test_checkpoint_format_attribute_of_another_type(rough, tmp_path):
+    path = tmp_path / "run.h5"
+    args, _ = _small_checkpoint(rough, path)
+    _alter(path, lambda f: f.attrs.__setitem__("format", np.array([1, 2])))
+    with pytest.raises(ValueError, match=r"resume file '.*run\.h5' is not a simulate "
+                                         r"checkpoint \(its format attribute is an array of "
+                                         r"int64 with shape \(2,\), expected"):
+        _resume(args, path)
+    _alter(path, lambda f: f.attrs.__setitem__("format", [est_mod._FORMAT.encode()] * 2))
+    with pytest.raises(ValueError, match=r"run\.h5' is not a simulate checkpoint"):
+        _resume(args, path)
+
+
+def test_cli_resume_names_the_file_and_the_fault(tmp_path, capsys):
+    import h5py
+
+    from compress.cli import main
+
+    sim = ["simulate", "--sigma", "1", "--tau", "6.5", "--resolution", "16", "--order", "2",
+           "--rays", "2000", "--no-progress", "-o", str(tmp_path / "x.h5")]
+    ckpt = tmp_path / "run.ckpt"
+    assert main([*sim, "--checkpoint", str(ckpt)]) == 0
+    good = ckpt.read_bytes()
+    for change, match in [
+        (lambda f: f.attrs.__setitem__("format", np.array([1, 2])),
+         r"is not a simulate checkpoint \(its format attribute is an array of int64"),
+        (_replace("sum", h5py.ExternalLink(str(tmp_path / "elsewhere.h5"), "/sum")),
+         r"is refused: /sum is an external link to '.*elsewhere\.h5':'/sum'"),
+    ]:
+        ckpt.write_bytes(good)
+        _alter(ckpt, change)
+        capsys.readouterr()
+        assert main([*sim, "--resume", str(ckpt)]) == 2
+        err = capsys.readouterr().err
+        assert re.search(r"resume file '.*run\.ckpt' " + match, err), err
+        assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
 
 
 def _alter(path, change):
