@@ -1,7 +1,11 @@
 """Where BRDFs come from and how they become coefficients.
 
 - :mod:`project.models`: analytic BRDFs (Lambert, Phong, Ward, Cook-Torrance, ...).
-- :mod:`project.measured`: MERL files.
+- :mod:`project.measured`: measured BRDFs (MERL, RGL-EPFL ``.bsdf``) and goniometer tables.
+- :class:`project.Measurements`: scattered samples; every fit to them is cross-validated
+  (:mod:`project.crossval`).
+- :func:`project.reciprocity`: how far a BRDF or a sample set is from f(w_i, w_o) =
+  f(w_o, w_i), and the floor below which no reciprocal representation can go.
 - :func:`project.project`: quadrature (or Monte Carlo, or least-squares) projection.
 - :func:`project.fit`: least squares for scattered measurements.
 - :func:`project.fit_model`: compact parametric models (microfacet, Lafortune lobes) fitted
