@@ -224,6 +224,19 @@ def test_measurements_select_is_no_worse_than_the_plain_model():
     assert rep.info["selected"]["l2"] <= plain.info["l2"] + 2 * plain.info["l2_stderr"]
 
 
+def test_measurements_default_folds_are_those_of_fit_model():
+    """The first sample candidate is fit_model's Lambert + GGX with its defaults, judged on
+    the folds fit_model itself uses: both report the same held-out error, bit for bit."""
+    from compress.selection import SAMPLE_CANDIDATES
+    from project import fit_model
+
+    meas = gonio_samples(GGX, noise=0.05)
+    plain = fit_model(meas, "lambert+ggx")
+    rep = select(meas, np.inf, candidates=SAMPLE_CANDIDATES[:1], dtypes=("float64",))
+    assert rep.info["selected"]["l2"] == plain.info["l2"]
+    assert rep.info["selected"]["l2_stderr"] == plain.info["l2_stderr"]
+
+
 def test_measurements_refuse_what_needs_a_brdf():
     meas = gonio_samples(GGX)
     with pytest.raises(ValueError, match="scene= needs a BRDF"):
