@@ -106,6 +106,7 @@ from basis.validation import choice
 
 from ..brdf import BRDF
 from ..io import atomic_path
+from ._files import as_path, input_file, output_file
 
 __all__ = [
     "MERL_BYTES",
@@ -149,14 +150,6 @@ def merl_grid() -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.fl
     theta_d = np.arange(N_THETA_D) * (np.pi / 2) / N_THETA_D
     phi_d = np.arange(N_PHI_D) * np.pi / N_PHI_D
     return theta_h, theta_d, phi_d
-
-
-def _as_path(path: object, name: str = "path") -> Path:
-    try:
-        return Path(os.fspath(path))  # type: ignore[arg-type]
-    except TypeError:
-        raise TypeError(f"{name} must be a str or os.PathLike, got {type(path).__name__}") \
-            from None
 
 
 def _first_index(mask: NDArray[np.bool_]) -> str:
@@ -248,7 +241,7 @@ class MERLBRDF(BRDF):
         self._valid = valid
         self._lut = _filled_lookup_table(t, valid)
         self.name = None if name is None else str(name)
-        self.path = None if path is None else _as_path(path)
+        self.path = None if path is None else as_path(path)
 
     @property
     def table(self) -> NDArray[np.float64]:
@@ -406,13 +399,8 @@ def read_merl(path: str | os.PathLike, *, interpolation: str = "trilinear") -> M
     >>> brdf.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]).round(12).tolist()
     [0.3, 0.3, 0.3]
     """
-    p = _as_path(path)
+    p = input_file(path, "MERL", "a MERL .binary file")
     choice(interpolation, "interpolation", INTERPOLATIONS)
-    if not p.exists():
-        raise FileNotFoundError(f"MERL file {str(p)!r} does not exist")
-    if p.is_dir():
-        raise IsADirectoryError(f"path must be a MERL .binary file, got the directory "
-                                f"{str(p)!r}")
     with open(p, "rb") as f:
         head = f.read(_HEADER_BYTES)
         size = os.fstat(f.fileno()).st_size
@@ -491,12 +479,7 @@ def write_merl(path: str | os.PathLike, source: object) -> Path:
     >>> size, back.name, bool(np.array_equal(back.table, t))
     (34992012, 'gray', True)
     """
-    p = _as_path(path)
-    if p.is_dir():
-        raise IsADirectoryError(f"path must be a file name, got the directory {str(p)!r}")
-    parent = p.parent if str(p.parent) else Path(".")
-    if not parent.is_dir():
-        raise FileNotFoundError(f"the directory of {str(p)!r} does not exist; create it first")
+    p = output_file(path)
     if isinstance(source, MERLBRDF):
         table = source.table
     elif callable(getattr(source, "eval", None)):

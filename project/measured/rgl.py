@@ -121,7 +121,7 @@ from basis.jit import njit, pjit, prange, writable
 
 from ..brdf import BRDF
 from ..io import atomic_path
-from .merl import _as_path
+from ._files import as_path, input_file, output_file
 
 __all__ = [
     "TENSOR_MAGIC",
@@ -178,7 +178,7 @@ def read_tensor_file(path: str | os.PathLike) -> dict[str, NDArray]:
     >>> fields["x"].tolist(), fields["x"].dtype.str
     ([0.0, 1.0, 2.0], '<f8')
     """
-    p = _existing_file(path, "tensor")
+    p = input_file(path, "tensor")
     data = p.read_bytes()
     where = f"tensor file {str(p)!r}"
     size = len(data)
@@ -266,9 +266,7 @@ def write_tensor_file(path: str | os.PathLike, fields: Mapping[str, ArrayLike]) 
     >>> head
     b'tensor_file\x00\x01\x00\x01\x00\x00\x00'
     """
-    p = _as_path(path)
-    if p.is_dir():
-        raise IsADirectoryError(f"path must be a file name, got the directory {str(p)!r}")
+    p = output_file(path)
     arrays: list[tuple[bytes, NDArray, int]] = []
     for name, value in fields.items():
         if not isinstance(name, str):
@@ -295,15 +293,6 @@ def write_tensor_file(path: str | os.PathLike, fields: Mapping[str, ArrayLike]) 
     with atomic_path(p, suffix=".tmp") as tmp, open(tmp, "wb") as f:
         f.write(bytes(header))
         f.write(bytes(body))
-    return p
-
-
-def _existing_file(path: object, kind: str) -> Path:
-    p = _as_path(path)
-    if not p.exists():
-        raise FileNotFoundError(f"{kind} file {str(p)!r} does not exist")
-    if p.is_dir():
-        raise IsADirectoryError(f"path must be a {kind} file, got the directory {str(p)!r}")
     return p
 
 
@@ -448,7 +437,7 @@ class RGLBRDF(BRDF):
 
     def __init__(self, fields: Mapping[str, ArrayLike], *, name: str | None = None,
                  path: str | os.PathLike | None = None) -> None:
-        self.path = None if path is None else _as_path(path)
+        self.path = None if path is None else as_path(path)
         self.name = None if name is None else str(name)
         where = "RGLBRDF fields" if self.path is None else f"RGL file {str(self.path)!r}"
         if not isinstance(fields, Mapping):
@@ -759,7 +748,7 @@ def read_rgl(path: str | os.PathLike) -> RGLBRDF:
     >>> brdf.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]).tolist()   # 0.5 * 1 / (4 * 1) / cos 0
     [0.125, 0.125, 0.125]
     """
-    p = _existing_file(path, "RGL")
+    p = input_file(path, "RGL")
     fields = read_tensor_file(p)
     name = p.name[:-len(".bsdf")] if p.name.endswith(".bsdf") else p.name
     return RGLBRDF(fields, name=name, path=p)

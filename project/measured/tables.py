@@ -74,7 +74,7 @@ from basis.validation import choice
 from ..io import atomic_path
 from ..lstsq import read_table
 from ..measurements import Measurements
-from .merl import _as_path
+from ._files import input_file, output_file
 
 __all__ = ["ANGLE_UNITS", "MEASUREMENT_FORMATS", "MIN_WAVELENGTH", "read_measurements",
            "write_measurements"]
@@ -184,16 +184,11 @@ def read_measurements(path: str | os.PathLike, format: str | None = None, *,
     >>> meas.wavelengths.tolist(), meas.values[:, 1].tolist(), meas.info["angles"]
     ([450.0, 550.0], [0.5, 0.125], 'degrees')
     """
-    p = _as_path(path)
+    p = input_file(path, "measurement")
     if format is not None:
         choice(format, "format", MEASUREMENT_FORMATS)
     if angles is not None:
         choice(angles, "angles", ANGLE_UNITS)
-    if not p.exists():
-        raise FileNotFoundError(f"measurement file {str(p)!r} does not exist")
-    if p.is_dir():
-        raise IsADirectoryError(f"path must be a measurement file, got the directory "
-                                f"{str(p)!r}")
     text = _Text(p)
     if format is None:
         format, how = _detect(text)
@@ -605,12 +600,10 @@ def write_measurements(path: str | os.PathLike, meas: Measurements,
     >>> float(np.abs(back.wi - m.wi).max()) < 1e-15
     True
     """
-    p = _as_path(path)
+    p = output_file(path)
     if not isinstance(meas, Measurements):
         raise TypeError(f"meas must be a project.Measurements, got {type(meas).__name__}")
     choice(format, "format", MEASUREMENT_FORMATS)
-    if p.is_dir():
-        raise IsADirectoryError(f"path must be a file name, got the directory {str(p)!r}")
     unit_weights = bool(np.all(meas.weights == 1.0))
     if format != "csv" and not unit_weights:
         raise ValueError(f"the {format} format holds no weights and these are not all 1: "
