@@ -399,8 +399,8 @@ def read_merl(path: str | os.PathLike, *, interpolation: str = "trilinear") -> M
     >>> brdf.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0]).round(12).tolist()
     [0.3, 0.3, 0.3]
     """
-    p = input_file(path, "MERL", "a MERL .binary file")
     choice(interpolation, "interpolation", INTERPOLATIONS)
+    p = input_file(path, "MERL", "a MERL .binary file")
     with open(p, "rb") as f:
         head = f.read(_HEADER_BYTES)
         size = os.fstat(f.fileno()).st_size
