@@ -11,7 +11,8 @@ isotropic BRDFs as functions of (theta_h, theta_d) only; Bagher, Snyder & Nowrou
 
 - :class:`FactoredLobe` is the model, a :class:`~project.brdf.BRDF`:
   f = kd/pi + sum_k w_k A_k(theta_h) B_k(theta_d) C_k(phi_d), tables >= 0, piecewise linear
-  (continuous), reciprocal bit for bit.
+  (continuous); reciprocal bit for bit with C_k over half a turn (the default), or not
+  reciprocal with C_k over the whole turn (``phi_turn="full"``, for measured data).
 - :func:`fit_factored` fits one to any isotropic BRDF in the cosine-weighted L2 norm of
   q = f cos(theta_i) cos(theta_o) over H x H, by non-negative alternating least squares.
 - :func:`rusinkiewicz_rule` is the quadrature rule of the fit: the Jacobian
@@ -79,6 +80,45 @@ et al. 2003). blue-acrylic / alum-bronze / gold-metallic-paint:
    and tungsten-carbide; blue-acrylic (0.051 at 4392 bytes) and green-acrylic (0.075 at
    3624) do not get there. Median for 5 %: 2168 bytes.
 
+5. Non-reciprocal data: ``phi_turn="full"`` (phi_d tables over [0, 2 pi)) against the
+   default half turn, real RGL-EPFL measurements (Dupuy & Jakob 2018, read by
+   :func:`project.measured.read_rgl`), rank 4, ``"weights"``; l2 error of q on
+   independent peak-resolving pairs (worst channel, as ``fit_model`` reports it,
+   standard errors 1-7e-4) and the floor of :func:`project.reciprocity` (what no
+   reciprocal form goes below); the seconds on 2 shared cores::
+
+       file                   floor   bins          bytes  half          full
+       paper_white_rgb        0.0223  (32, 24, 8)   2168   0.0260 (20 s)  0.0221 (16 s)
+                                      (32, 24, 16)  2424   0.0257 (29 s)  0.0219 (34 s)
+       colodur_napoli_4f_rgb  0.0524  (32, 24, 8)   2168   0.0629 (10 s)  0.0531 (9 s)
+                                      (32, 24, 16)  2424   0.0662 (6 s)   0.0522 (9 s)
+       vch_golden_yellow_rgb  0.0882  (32, 24, 8)   2168   0.159 (5 s)    0.150 (2 s)
+                                      (32, 24, 16)  2424   0.268 (3 s)    0.150 (2 s)
+
+   The half turn stays above the floor, as it must; the full turn reaches it at the same
+   bytes, but at rank 4 it takes only part of the antisymmetric energy (paper: about
+   40 % if the symmetric misfit stays that of the half turn; on the fitting rule the
+   channels-summed error 0.0218 against an antisymmetric part of 0.0219): most of it
+   lies at grazing angles (:mod:`project.reciprocity`), where four shared products also
+   have to hold the symmetric lobe. Rank 8, bins (32, 24, 16), 4824 bytes, goes below
+   the floor on the paper (0.0167, 135 s, 1000 sweeps) and to 0.098 on the vinyl (95 s).
+   At rank 4 the vinyl's worst channel stays near 0.15 either way, far above its floor:
+   a misfit of the ``"weights"`` lobe, not of reciprocity (on the rule, channels summed:
+   0.068 half, 0.055 full, antisymmetric part 0.052; the 0.268 is one poor local
+   minimum). A reciprocal BRDF
+   gives the same fit either way (the data and so every step are symmetric under
+   phi_d -> phi_d + pi: GGX rank 2, 0.0149 both).
+
+   *Why a whole turn rather than a separate antisymmetric term.* A term
+   a(theta_h, theta_d) s(phi_d) with s(phi_d + pi) = -s(phi_d) changes sign, so f >= 0
+   would no longer hold by construction and the non-negative least squares of the fit
+   would not apply; its own theta_h and theta_d tables cost n_h + n_d + n_phi + C reals
+   per term (67, 536 bytes, at (32, 24, 8) on RGB), while the whole turn costs
+   rank x n_phi more reals than the half turn at the same phi_d resolution (256 bytes at
+   rank 4), or nothing at the same bytes with the nodes twice as far apart -- which the
+   table shows is the better use of them (0.0221 against 0.0260 on the paper). The
+   separate term was not built and measured.
+
 ``warp_d="grazing"`` (theta_d nodes dense towards pi/2) pays on analytic microfacet lobes
 (Cook-Torrance GGX alpha 0.1, glass Fresnel, rank 1, bins (32, 24): 0.035 against 0.047;
 (32, 16): 0.046 against 0.080) and on 12 of 16 surrogates at rank 4 and the default bins
@@ -132,6 +172,7 @@ import numpy as np
 from numpy.polynomial.legendre import leggauss
 from numpy.typing import ArrayLike, NDArray
 from scipy.linalg import cho_factor, cho_solve
+from threadpoolctl import threadpool_limits
 
 from basis import from_rusinkiewicz
 from basis.validation import check_bytes, choice, nonneg_int
@@ -139,7 +180,8 @@ from basis.validation import check_bytes, choice, nonneg_int
 from .brdf import BRDF, as_color
 from .measured import MERLBRDF
 
-__all__ = ["COLORS", "D_WARPS", "WARPS", "FactoredLobe", "fit_factored", "rusinkiewicz_rule"]
+__all__ = ["COLORS", "D_WARPS", "PHI_TURNS", "WARPS", "FactoredLobe", "fit_factored",
+           "rusinkiewicz_rule"]
 
 #: theta_h = (pi/2) s^p with s in [0, 1] uniform on the theta_h nodes: p of each warp
 #: (nodes dense near the specular direction theta_h = 0 for p > 1).
@@ -149,6 +191,9 @@ WARPS = {"linear": 1.0, "sqrt": 2.0, "cbrt": 3.0}
 D_WARPS = {"linear": 1.0, "grazing": 2.0}
 #: Which factor carries the channels (see :func:`fit_factored`).
 COLORS = ("theta_d", "theta_h", "both", "weights")
+#: The part of the turn the phi_d tables span, as a fraction of 2 pi: "half" (phi_d folded
+#: to [0, pi), reciprocal by construction) or "full" ([0, 2 pi), not reciprocal).
+PHI_TURNS = {"half": 0.5, "full": 1.0}
 _METRICS = ("l2",)
 _HALF_PI = 0.5 * math.pi
 #: Gauss-Legendre nodes per panel of the fitting grid in theta_h and theta_d.
@@ -181,9 +226,10 @@ def _hat(x: NDArray[np.float64], n: int) -> tuple[NDArray[np.intp], NDArray[np.f
     return i0, np.clip(x - i0, 0.0, 1.0)
 
 
-def _periodic_hat(phi: NDArray[np.float64], n: int) -> tuple[NDArray, NDArray, NDArray]:
-    """Nodes e0, e1 and fraction of the periodic interpolant on n nodes k pi/n at phi."""
-    x = phi * (n / math.pi)
+def _periodic_hat(phi: NDArray[np.float64], n: int, period: float = math.pi,
+                  ) -> tuple[NDArray, NDArray, NDArray]:
+    """Nodes e0, e1 and fraction of the periodic interpolant on n nodes k period/n at phi."""
+    x = phi * (n / period)
     f = np.floor(x)
     e0 = f.astype(np.intp) % n
     return e0, (e0 + 1) % n, np.clip(x - f, 0.0, 1.0)
@@ -208,7 +254,7 @@ def _as_table(value: ArrayLike, name: str, ndim: int = 3) -> NDArray[np.float64]
 
 
 class FactoredLobe(BRDF):
-    """An isotropic, reciprocal BRDF tabulated as a sum of products of 1-D factors.
+    """An isotropic BRDF tabulated as a sum of products of 1-D factors.
 
     f(w_i, w_o) = kd/pi + sum_{k=1..rank} w_k A_k(theta_h) B_k(theta_d) C_k(phi_d)
 
@@ -228,8 +274,8 @@ class FactoredLobe(BRDF):
         B_k (dimensionless) at the theta_d nodes (pi/2) (1 - (1 - j / (n_d - 1))^q),
         j = 0..n_d-1, q the exponent of ``warp_d`` (q = 1: uniform); >= 0.
     phi_table : None or (rank, n_phi) array_like of float
-        C_k at phi_d = e pi / n_phi, e = 0..n_phi-1, periodic with period pi; None means
-        C_k = 1 (no phi_d dependence).
+        C_k at phi_d = e P / n_phi, e = 0..n_phi-1, periodic with period P = pi
+        (``phi_turn="half"``) or 2 pi (``"full"``); None means C_k = 1 (no phi_d dependence).
     weights : None or (rank, channels) array_like of float
         The colour w_k of each term, for tables without a channel axis; None means 1.
     warp : {"cbrt", "sqrt", "linear"}
@@ -237,6 +283,10 @@ class FactoredLobe(BRDF):
         specular direction for p > 1 ("sqrt" is the MERL layout, Matusik et al. 2003).
     warp_d : {"grazing", "linear"}
         q = 2, 1: theta_d nodes dense towards grazing (theta_d = pi/2), or uniform.
+    phi_turn : {"half", "full"}
+        The period of the phi_d tables: half a turn (phi_d folded to [0, pi): f is
+        reciprocal) or the whole turn ([0, 2 pi): f(w_i, w_o) and f(w_o, w_i) may differ).
+        "full" needs a ``phi_table``.
     info : dict, optional
         Kept as ``info`` (the fit report of :func:`fit_factored`).
 
@@ -244,6 +294,10 @@ class FactoredLobe(BRDF):
     ----------
     rank, bins, kd, h_table, d_table, phi_table, weights, nparams, nbytes, info
         See the properties; the tables are read-only views.
+    phi_turn : str
+        "half" or "full", as given.
+    reciprocal : bool
+        True for ``phi_turn="half"``, False for "full".
 
     Notes
     -----
@@ -258,8 +312,21 @@ class FactoredLobe(BRDF):
     ``weights`` (each term one shape and one RGB colour). kd is always per channel.
 
     *Reciprocity and isotropy.* Swapping w_i and w_o leaves theta_h and theta_d unchanged
-    and turns phi_d into phi_d + pi, which the period pi of C_k absorbs; the angles are
-    computed from w_i + w_o and w_i - w_o, so f(w_i, w_o) == f(w_o, w_i) bit for bit.
+    and turns phi_d into phi_d + pi (mod 2 pi). Proof, in the notation of
+    :func:`basis.to_rusinkiewicz`: h = (w_i + w_o)/|w_i + w_o| is symmetric, so theta_h,
+    phi_h and the rotation R = R_y(-theta_h) R_z(-phi_h) taking h to z are too; w_o is the
+    mirror image of w_i about h, w_o = 2 (w_i . h) h - w_i, so with d = R w_i =
+    (sin td cos pd, sin td sin pd, cos td) the difference vector of the exchanged pair is
+    R w_o = 2 cos(td) z - d = (-sin td cos pd, -sin td sin pd, cos td): the same theta_d,
+    and phi_d + pi. (Equivalently R (w_i - w_o) = 2 sin(theta_d) (cos phi_d, sin phi_d, 0),
+    which the exchange negates; ``tests/project/test_factored.py`` checks this against
+    ``to_rusinkiewicz``.) With ``phi_turn="half"`` the period pi of C_k absorbs the shift:
+    the angles are computed from w_i + w_o and w_i - w_o, so f(w_i, w_o) == f(w_o, w_i) bit
+    for bit. With ``"full"``, phi_d = atan2 of the components of R (w_i - w_o) in [0, 2 pi)
+    of the pair in the order given, and C_k(phi_d) and C_k(phi_d + pi) are independent
+    values: the lobe holds a non-reciprocal BRDF, its antisymmetric part
+    sum_k w_k A_k B_k (C_k(phi_d) - C_k(phi_d + pi)) / 2 included. The exchange is still
+    exact: it negates w_i - w_o bit for bit, so f(w_o, w_i) is the value at phi_d + pi.
     Nothing depends on phi_h, so f is unchanged by rotations about the normal, except on the
     set of measure zero h = z, where phi_d is measured from the x axis (as
     :class:`~project.measured.MERLBRDF` does) and a phi_d table makes f depend on the
@@ -274,6 +341,16 @@ class FactoredLobe(BRDF):
     FactoredLobe(rank=1, bins=(3, 2), warp='cbrt', warp_d='grazing', channels=1, nbytes=48)
     >>> round(float(lobe.eval([0, 0, 1.0], [0, 0, 1.0])), 6)  # theta_h = theta_d = 0
     50.063662
+
+    A full-turn phi_d table: brighter when w_i is on the +x side of h than in the exchange.
+
+    >>> full = FactoredLobe(0.0, [[1.0, 1.0]], [[1.0, 1.0]], phi_table=[[2.0, 1.0, 0.0, 1.0]],
+    ...                     phi_turn="full")
+    >>> full.reciprocal, full.bins
+    (False, (2, 2, 4))
+    >>> wi, wo = [0.6, 0.0, 0.8], [-0.6, 0.0, 0.8]  # h = z, phi_d = 0 and pi
+    >>> float(full.eval(wi, wo)), float(full.eval(wo, wi))
+    (2.0, 0.0)
     """
 
     #: The name of this family in :func:`project.fit_model` and :mod:`compress.store`.
@@ -281,9 +358,15 @@ class FactoredLobe(BRDF):
 
     def __init__(self, kd: ArrayLike, h_table: ArrayLike, d_table: ArrayLike, *,
                  phi_table: ArrayLike | None = None, weights: ArrayLike | None = None,
-                 warp: str = "cbrt", warp_d: str = "grazing",
+                 warp: str = "cbrt", warp_d: str = "grazing", phi_turn: str = "half",
                  info: dict[str, Any] | None = None) -> None:
         self._p = WARPS[choice(warp, "warp", tuple(WARPS))]
+        self._period = 2.0 * math.pi * PHI_TURNS[choice(phi_turn, "phi_turn",
+                                                         tuple(PHI_TURNS))]
+        if phi_turn == "full" and phi_table is None:
+            raise ValueError("phi_turn 'full' needs a phi_table (without one f does not "
+                             "depend on phi_d and is reciprocal), got phi_table=None")
+        self.phi_turn = phi_turn
         self._pd = D_WARPS[choice(warp_d, "warp_d", tuple(D_WARPS))]
         self.warp = warp
         self.warp_d = warp_d
@@ -320,7 +403,7 @@ class FactoredLobe(BRDF):
         self._scalar = (self.channels == 1 and np.ndim(kd) == 0 and np.ndim(h_table) == 2
                         and np.ndim(d_table) == 2 and weights is None)
         self.isotropic = True
-        self.reciprocal = True
+        self.reciprocal = phi_turn == "half"
         for arr in (k, a, b, c, w):
             if arr is not None:
                 arr.flags.writeable = False
@@ -356,7 +439,10 @@ class FactoredLobe(BRDF):
 
     @property
     def phi_table(self) -> NDArray[np.float64] | None:
-        """(rank, n_phi) read-only values of C_k at phi_d = j pi / n_phi, or None (C = 1)."""
+        """(rank, n_phi) read-only values of C_k at phi_d = j P / n_phi, or None (C = 1).
+
+        P = pi for ``phi_turn="half"``, 2 pi for "full".
+        """
         return None if self._c is None else self._c.view()
 
     @property
@@ -393,7 +479,11 @@ class FactoredLobe(BRDF):
 
         ``kd`` (channels,), ``h_table``, ``d_table`` (with their channel axis), ``phi_table``
         and ``weights`` when present, and the warp exponents ``warp`` (p) and ``warp_d`` (q)
-        as 0-d arrays; all read-only.
+        as 0-d arrays; all read-only. A full-turn lobe also holds ``phi_turn``, the 0-d
+        array 1.0 (the fraction of the turn its phi_d tables span, :data:`PHI_TURNS`); a
+        half-turn lobe does not, so its params are what they were before full-turn lobes
+        existed and parameters without ``phi_turn`` mean "half". The period cannot be told
+        from the table length (n_phi nodes may span either), hence the entry.
         """
         out = {"kd": self.kd, "h_table": self._a, "d_table": self._b}
         if self._c is not None:
@@ -402,17 +492,21 @@ class FactoredLobe(BRDF):
             out["weights"] = self._w
         out["warp"] = np.array(self._p)
         out["warp_d"] = np.array(self._pd)
+        if self.phi_turn != "half":
+            out["phi_turn"] = np.array(PHI_TURNS[self.phi_turn])
         for v in out.values():
             v.flags.writeable = False
         return out
 
     # -- evaluation -------------------------------------------------------------------------
     def _angles(self, wi: NDArray, wo: NDArray) -> tuple[NDArray, NDArray, NDArray]:
-        """Return (theta_h, theta_d, phi_d mod pi) of (n, 3) unit pairs, symmetric in wi, wo.
+        """Return (theta_h, theta_d, phi_d) of (n, 3) unit pairs.
 
         From h = wi + wo and wi - wo (as MERLBRDF's kernel), so swapping wi and wo gives the
-        same three numbers bit for bit; phi_d is folded into [0, pi) by reciprocity and is
-        measured from the x axis when h = z (phi_h taken as 0).
+        same theta_h, theta_d bit for bit and negates wi - wo exactly. Half turn: phi_d
+        folded into [0, pi) by reciprocity (symmetric in wi, wo); full turn: phi_d in
+        [0, 2 pi) of the pair in the given order (the exchange adds pi). phi_d is measured
+        from the x axis when h = z (phi_h taken as 0).
         """
         h = wi + wo
         dv = wi - wo
@@ -430,6 +524,8 @@ class FactoredLobe(BRDF):
         sp = np.where(rp, h[:, 1] / np.where(rp, r, 1.0), 0.0)
         a = ct * (cp * dv[:, 0] + sp * dv[:, 1]) - st * dv[:, 2] + 0.0
         b = cp * dv[:, 1] - sp * dv[:, 0] + 0.0
+        if self.phi_turn == "full":
+            return theta_h, theta_d, np.mod(np.arctan2(b, a), 2.0 * math.pi)
         flip = (b < 0) | ((b == 0) & (a < 0))
         a = np.where(flip, -a, a) + 0.0
         b = np.where(flip, -b, b) + 0.0
@@ -444,7 +540,7 @@ class FactoredLobe(BRDF):
         t = _unwarp(theta_d, self._pd, True) * (n_d - 1)
         ab = _lookup(self._a, *_hat(s, n_h)) * _lookup(self._b, *_hat(t, n_d))
         if self._c is not None:
-            e0, e1, u = _periodic_hat(phi_d, self._c.shape[1])
+            e0, e1, u = _periodic_hat(phi_d, self._c.shape[1], self._period)
             ab = ab * (self._c[:, e0] * (1.0 - u) + self._c[:, e1] * u)[:, :, None]
         if self._w is not None:
             ab = ab * self._w[:, None, :]
@@ -453,8 +549,10 @@ class FactoredLobe(BRDF):
         return out
 
     def __repr__(self) -> str:
+        turn = "" if self.phi_turn == "half" else f", phi_turn={self.phi_turn!r}"
         return (f"FactoredLobe(rank={self.rank}, bins={self.bins}, warp={self.warp!r}, "
-                f"warp_d={self.warp_d!r}, channels={self.channels}, nbytes={self.nbytes})")
+                f"warp_d={self.warp_d!r}{turn}, channels={self.channels}, "
+                f"nbytes={self.nbytes})")
 
 
 # -- the fitting grid -----------------------------------------------------------------------
@@ -486,7 +584,7 @@ def _cosines(theta_h: NDArray, theta_d: NDArray, phi_d: NDArray) -> tuple[NDArra
 
 
 def _rule(bins: tuple[int, int], power: float, power_d: float,
-          samples: tuple[int, int, int]):
+          samples: tuple[int, int, int], full: bool = False):
     th, wth, s = _panel_rule(bins[0], samples[0], power)
     td, wtd, t = _panel_rule(bins[1], samples[1], power_d, top=True)
     # both directions above the horizon <=> |cos phi_d| <= cot(theta_h) cot(theta_d): the
@@ -499,12 +597,15 @@ def _rule(bins: tuple[int, int], power: float, power_d: float,
     phi = _HALF_PI + half[..., None] * x
     jac = 4.0 * (np.sin(th) * wth)[:, None] * (np.cos(td) * np.sin(td) * wtd)[None, :]
     weights = (4.0 * math.pi) * (jac * half)[..., None] * w
+    if full:  # the exchanged pairs: phi_d + pi, each half of the turn with half the weight
+        phi = np.concatenate([phi, phi + math.pi], axis=2)
+        weights = np.concatenate([0.5 * weights, 0.5 * weights], axis=2)
     return th, td, phi, weights, s, t
 
 
 def rusinkiewicz_rule(bins: tuple[int, int] = (32, 24), warp: str = "cbrt",
                       samples: tuple[int, int, int] = (180, 64, 16), warp_d: str = "grazing",
-                      ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+                      phi_turn: str = "half") -> tuple[NDArray, NDArray, NDArray, NDArray]:
     """Return the quadrature rule over H x H in half/difference angles that fits use.
 
     Parameters
@@ -519,18 +620,24 @@ def rusinkiewicz_rule(bins: tuple[int, int] = (32, 24), warp: str = "cbrt",
         table bin cut into equal panels), and exactly this many in phi_d.
     warp_d : {"grazing", "linear"}
         theta_d = (pi/2) (1 - (1 - s)^q) with q = 2, 1; the panels are uniform in s.
+    phi_turn : {"half", "full"}
+        Half a turn: the nodes in [0, pi], for functions unchanged by phi_d -> phi_d + pi.
+        Full turn: those nodes, then the same nodes shifted by pi (the exchanged pairs
+        (w_o, w_i), see :class:`FactoredLobe`), each with half the weight.
 
     Returns
     -------
     theta_h : (N_h,) ndarray
     theta_d : (N_d,) ndarray
-    phi_d : (N_h, N_d, n_phi) ndarray
+    phi_d : (N_h, N_d, n_phi) ndarray, or (N_h, N_d, 2 n_phi) for the full turn
         Gauss-Legendre nodes on the part of [0, pi] where both directions are above the
-        horizon, an interval [phi0, pi - phi0] for each (theta_h, theta_d).
-    weights : (N_h, N_d, n_phi) ndarray
+        horizon, an interval [phi0, pi - phi0] for each (theta_h, theta_d); for the full
+        turn followed by the same nodes plus pi (the interval [pi + phi0, 2 pi - phi0]).
+    weights : same shape as phi_d
         sum(weights * g) approximates the integral of g over H x H in solid angle,
         d w_i d w_o, for g that depends on (theta_h, theta_d, phi_d) only and is unchanged by
-        phi_d -> phi_d + pi (every isotropic, reciprocal function).
+        phi_d -> phi_d + pi (every isotropic, reciprocal function); for the full turn, for
+        every isotropic g.
 
     Notes
     -----
@@ -554,6 +661,11 @@ def rusinkiewicz_rule(bins: tuple[int, int] = (32, 24), warp: str = "cbrt",
     >>> th, td, phi, w = rusinkiewicz_rule()
     >>> round(float(w.sum() / (2 * np.pi) ** 2), 3)  # the horizon kink limits this one
     1.0
+    >>> th, td, phi2, w2 = rusinkiewicz_rule(phi_turn="full")
+    >>> phi2.shape[2] == 2 * phi.shape[2], bool(np.allclose(phi2[..., 16:], phi + np.pi))
+    (True, True)
+    >>> bool(np.isclose(w2.sum(), w.sum(), rtol=1e-14, atol=0))
+    True
     """
     n_h, n_d = (nonneg_int(b, "bins") for b in bins)
     if n_h < 2 or n_d < 2:
@@ -561,7 +673,8 @@ def rusinkiewicz_rule(bins: tuple[int, int] = (32, 24), warp: str = "cbrt",
     power = WARPS[choice(warp, "warp", tuple(WARPS))]
     power_d = D_WARPS[choice(warp_d, "warp_d", tuple(D_WARPS))]
     samples = _samples(samples)
-    th, td, phi, weights, _, _ = _rule((n_h, n_d), power, power_d, samples)
+    full = PHI_TURNS[choice(phi_turn, "phi_turn", tuple(PHI_TURNS))] == 1.0
+    th, td, phi, weights, _, _ = _rule((n_h, n_d), power, power_d, samples, full)
     return th, td, phi, weights
 
 
@@ -609,14 +722,18 @@ def _values(brdf: Any, wi: NDArray, wo: NDArray, channels: int, angles: tuple) -
 
 
 def _sample(brdf: Any, th: NDArray, td: NDArray, phi: NDArray, weights: NDArray,
-            channels: int) -> dict[str, Any]:
-    """Weights w z_i^2 z_o^2 and values of the reciprocal part of the BRDF on the rule.
+            channels: int, full: bool = False) -> dict[str, Any]:
+    """Weights w z_i^2 z_o^2 and values of the BRDF on the rule.
 
+    Half turn: the values of the reciprocal part (f(w_i, w_o) + f(w_o, w_i)) / 2. Full
+    turn (the rule of both orders): f itself at every node, nothing symmetrised.
     Returns w (N_h, N_d, n_phi) (0 where a MERL table is invalid), f (C, N_h, N_d, n_phi),
-    S (C,) = sum w f^2 and ``anti`` (C,), the energy of the non-reciprocal part
-    (f(w_i, w_o) - f(w_o, w_i)) / 2, which no reciprocal model fits (0 for reciprocal BRDFs).
+    S (C,) = sum w f^2 (all of f), ``anti`` (C,), the energy of the non-reciprocal part
+    (f(w_i, w_o) - f(w_o, w_i)) / 2 that the half-turn model does not see (0 for the full
+    turn and for BRDFs that say they are reciprocal), and ``antisymmetric`` (C,), that
+    energy on the rule in either case (for the report).
     """
-    reciprocal = bool(getattr(brdf, "reciprocal", True))
+    reciprocal = bool(getattr(brdf, "reciprocal", True)) or full
     shape = phi.shape
     zi, zo = _cosines(th[:, None, None], td[None, :, None], phi)
     w = weights * (zi * zo) ** 2
@@ -649,8 +766,13 @@ def _sample(brdf: Any, th: NDArray, td: NDArray, phi: NDArray, weights: NDArray,
             a = 0.5 * (a + b)
         S += ws @ (a * a)
         f[:, sl] = a.T.reshape(channels, *phi[sl].shape)
-    return {"w": w, "f": f, "S": S + anti, "anti": anti, "skipped": skipped,
-            "evaluations": int(phi.size * (1 if reciprocal else 2))}
+    antisym = anti
+    if full:  # the second half of the turn holds the exchanged pairs of the first
+        m = shape[2] // 2
+        antisym = np.einsum("ijp,cijp->c", w[..., :m] + w[..., m:],
+                            (0.5 * (f[..., :m] - f[..., m:])) ** 2)
+    return {"w": w, "f": f, "S": S + anti, "anti": anti, "antisymmetric": antisym,
+            "skipped": skipped, "evaluations": int(phi.size * (1 if reciprocal else 2))}
 
 
 # -- alternating non-negative least squares -------------------------------------------------
@@ -754,7 +876,7 @@ class _Problem:
     """
 
     def __init__(self, data: dict, phi: NDArray, s: NDArray, t: NDArray,
-                 bins: tuple[int, int], n_phi: int) -> None:
+                 bins: tuple[int, int], n_phi: int, period: float = math.pi) -> None:
         w, f = data["w"], data["f"]
         self.w, self.f = w, f
         self.n_h, self.n_d = bins
@@ -773,7 +895,7 @@ class _Problem:
         self.floor = np.einsum("ijp,cijp->c", w, (f - self.Fb[..., None]) ** 2)
         self.n_phi = n_phi
         if n_phi:
-            self.phat = _periodic_hat(phi, n_phi)
+            self.phat = _periodic_hat(phi, n_phi, period)
             e0, e1, u = self.phat
             N = self.W.size
             cell = (np.arange(N) * n_phi).reshape(self.W.shape)[..., None]
@@ -1016,7 +1138,8 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
                  warp: str = "cbrt", warp_d: str = "grazing", color: str = "weights",
                  samples: tuple[int, int, int] = (180, 64, 16), metric: str = "l2",
                  diffuse: bool = True, seed: int = 0, max_iter: int = 1000,
-                 tol: float = 1e-6, accelerate: bool = True) -> FactoredLobe:
+                 tol: float = 1e-6, accelerate: bool = True, phi_turn: str = "half",
+                 ) -> FactoredLobe:
     """Fit a :class:`FactoredLobe` to a BRDF in the cosine-weighted L2 norm over H x H.
 
     The fit minimises the squared error of q = f cos(theta_i) cos(theta_o),
@@ -1031,8 +1154,9 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
     brdf : BRDF
         Any isotropic object with ``eval(wi, wo)`` and ``channels``: an analytic model or a
         :class:`~project.measured.MERLBRDF`. It must return finite values >= 0 above the
-        horizon. A non-reciprocal BRDF is fitted by its reciprocal part
-        (f(w_i, w_o) + f(w_o, w_i))/2; the rest counts as error.
+        horizon. With ``phi_turn="half"``, a non-reciprocal BRDF (``reciprocal`` False) is
+        fitted by its reciprocal part (f(w_i, w_o) + f(w_o, w_i))/2 and the rest counts as
+        error; with ``"full"`` f itself is fitted, in both orders.
     rank : int
         Number of product terms, >= 1.
     bins : (n_h, n_d) or (n_h, n_d, n_phi)
@@ -1065,6 +1189,15 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
         Stop when a sweep lowers E by less than ``tol`` times E.
     accelerate : bool
         Extrapolate along the last sweep when that lowers E (see Notes).
+    phi_turn : {"half", "full"}
+        The period of the phi_d tables (see :class:`FactoredLobe`): "half" (pi, reciprocal
+        by construction) or "full" (2 pi: the lobe also holds the antisymmetric part of a
+        non-reciprocal BRDF, which the half turn leaves as error). The n_phi nodes of
+        ``bins`` span the period, so "full" with 2 n_phi nodes has the resolution in phi_d
+        of "half" with n_phi (and twice its phi_d tables); "full" needs n_phi. The rule
+        then also holds every pair exchanged (:func:`rusinkiewicz_rule`), at no more
+        evaluations of a non-reciprocal ``brdf`` than "half" (which evaluates both orders
+        to symmetrise), and twice as many for a reciprocal one.
 
     Returns
     -------
@@ -1074,7 +1207,11 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
         phi_d-independent function: no model without a phi_d factor can go below it),
         ``iterations``, ``converged``, ``seconds``, ``evaluations`` (of ``brdf.eval``),
         ``skipped`` (the fraction of the weight at invalid MERL cells), ``reseeds``,
-        ``dead_terms`` and ``history`` (the relative error after each sweep).
+        ``dead_terms``, ``history`` (the relative error after each sweep) and
+        ``antisymmetric`` (the relative L2 norm of the antisymmetric part
+        (q(w_i, w_o) - q(w_o, w_i))/2 on the rule, the channels summed, as ``error``: the
+        floor of a half-turn lobe; 0 when a half-turn fit is given a BRDF that says it is
+        reciprocal, since its transpose is then not evaluated).
 
     Raises
     ------
@@ -1130,6 +1267,21 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
     FactoredLobe(rank=2, bins=(24, 16), warp='cbrt', warp_d='grazing', channels=1, nbytes=648)
     >>> bool(lobe.info["error"] < 0.04), lobe.info["converged"]
     (True, True)
+
+    A non-reciprocal BRDF, f = (1 + 0.5 cos theta_i) / pi: the half turn stops at its
+    antisymmetric part, the full turn fits it.
+
+    >>> from project.brdf import BRDF
+    >>> class Tilted(BRDF):
+    ...     channels, isotropic, reciprocal = 1, True, False
+    ...     def _eval(self, wi, wo):
+    ...         return (1.0 + 0.5 * wi[:, 2:3]) / np.pi
+    >>> half = fit_factored(Tilted(), rank=2, bins=(16, 8, 8))
+    >>> full = fit_factored(Tilted(), rank=2, bins=(16, 8, 8), phi_turn="full")
+    >>> round(half.info["antisymmetric"], 3), bool(half.info["error"] >= 0.0496)
+    (0.05, True)
+    >>> full.reciprocal, bool(full.info["error"] < 0.01)
+    (False, True)
     """
     start = time.perf_counter()
     rank = nonneg_int(rank, "rank")
@@ -1145,6 +1297,10 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
                          f"{bins!r}")
     n_h, n_d = nb[:2]
     n_phi = nb[2] if len(nb) == 3 else 0
+    full = PHI_TURNS[choice(phi_turn, "phi_turn", tuple(PHI_TURNS))] == 1.0
+    if full and not n_phi:
+        raise ValueError(f"phi_turn 'full' needs a phi_d factor: bins must be (n_h, n_d, "
+                         f"n_phi), got {bins!r}")
     power = WARPS[choice(warp, "warp", tuple(WARPS))]
     power_d = D_WARPS[choice(warp_d, "warp_d", tuple(D_WARPS))]
     choice(color, "color", COLORS)
@@ -1166,97 +1322,101 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
     C = nonneg_int(getattr(brdf, "channels", 1), "brdf.channels")
     scalar = C == 1 and np.ndim(brdf.eval([0.0, 0.0, 1.0], [0.0, 0.0, 1.0])) == 0
 
-    th, td, phi, wq, s, t = _rule((n_h, n_d), power, power_d, samples)
+    th, td, phi, wq, s, t = _rule((n_h, n_d), power, power_d, samples, full)
     check_bytes(8.0 * phi.size * (C + 8), f"fitting on a rule of {phi.size} points")
-    data = _sample(brdf, th, td, phi, wq, C)
+    data = _sample(brdf, th, td, phi, wq, C, full)
     if not data["S"].sum() > 0:
         raise ValueError(f"brdf must not vanish on the upper hemisphere, got {brdf!r} = 0 "
                          "at every node of the rule")
-    prob = _Problem(data, phi, s, t, (n_h, n_d), n_phi)
+    prob = _Problem(data, phi, s, t, (n_h, n_d), n_phi, 2.0 * math.pi if full else math.pi)
 
-    rng = np.random.default_rng(seed)
-    CA = C if color in ("theta_h", "both") else 1
-    CB = C if color in ("theta_d", "both") else 1
-    weights_mode = color == "weights" and C > 1
-    B = np.repeat(_nndsvd(prob, rank, rng)[:, :, None], CB, axis=2)
-    A = np.zeros((rank, n_h, CA))
-    w = np.ones((rank, C))
-    kd = np.zeros(C)
-    Cphi: NDArray | None = None
-    history: list[float] = []
-    reseeds = 0
-    iterations = 0
-    converged = False
-    dead: list[int] = []
-    stages = [False] + ([True] if n_phi else [])
-    s_tot = float(prob.S.sum())
-    for phi_active in stages:
-        if phi_active:
-            Cphi = np.ones((rank, n_phi))
-        budget = max_iter - iterations if phi_active or not n_phi else max(1, max_iter // 2)
-        # with a phi_d factor to come, the phi_d-free stage is only its starting point
-        stage_tol = tol if phi_active or not n_phi else max(tol, 1e-4)
-        mom = prob.moments(Cphi)
-        pa = pb = pc = None
-        last = math.inf
+    # the steps multiply small matrices (cells x nodes x rank^2): BLAS threads only add
+    # synchronisation, and cost 5-10x when another process holds a core (rank 2, bins
+    # (32, 24, 16), 2 cores, one busy: 25 s with two OpenBLAS threads, 3.8 s with one)
+    with threadpool_limits(1, user_api="blas"):
+        rng = np.random.default_rng(seed)
+        CA = C if color in ("theta_h", "both") else 1
+        CB = C if color in ("theta_d", "both") else 1
+        weights_mode = color == "weights" and C > 1
+        B = np.repeat(_nndsvd(prob, rank, rng)[:, :, None], CB, axis=2)
+        A = np.zeros((rank, n_h, CA))
+        w = np.ones((rank, C))
+        kd = np.zeros(C)
+        Cphi: NDArray | None = None
+        history: list[float] = []
+        reseeds = 0
+        iterations = 0
         converged = False
-        prev = None
-        beta = _BETA[0]
-        for it_stage in range(budget):
-            iterations += 1
-            G = np.stack([(prob.Q @ B[:, :, min(c, CB - 1)].T) * w[:, c] for c in range(C)])
-            A, kd, pa, value = _side_step(prob, mom, "h", G, diffuse, CA == 1, pa)
-            G = np.stack([(prob.P @ A[:, :, min(c, CA - 1)].T) * w[:, c] for c in range(C)])
-            B, kd, pb, value = _side_step(prob, mom, "d", G, diffuse, CB == 1, pb)
-            if weights_mode:
-                w, kd, value = _weights_step(prob, mom, A, B, diffuse)
+        dead: list[int] = []
+        stages = [False] + ([True] if n_phi else [])
+        s_tot = float(prob.S.sum())
+        for phi_active in stages:
             if phi_active:
-                Cphi, kd, pc, value = _phi_step(prob, _terms(prob, A, B, w), diffuse, pc)
-            dead = _normalise(A, B, Cphi, w, weights_mode)
-            for k in dead:
-                A[k] = 0.0
-                if reseeds < _RESEEDS:  # restart a term that died from a random theta_d table
-                    reseeds += 1
-                    B[k] = 0.1 + rng.random(B[k].shape)
-                    w[k] = 1.0
-                    if Cphi is not None:
-                        Cphi[k] = 1.0
-                    pa = pb = pc = None
+                Cphi = np.ones((rank, n_phi))
+            budget = max_iter - iterations if phi_active or not n_phi else max(1, max_iter // 2)
+            # with a phi_d factor to come, the phi_d-free stage is only its starting point
+            stage_tol = tol if phi_active or not n_phi else max(tol, 1e-4)
+            mom = prob.moments(Cphi)
+            pa = pb = pc = None
+            last = math.inf
+            converged = False
+            prev = None
+            beta = _BETA[0]
+            for it_stage in range(budget):
+                iterations += 1
+                G = np.stack([(prob.Q @ B[:, :, min(c, CB - 1)].T) * w[:, c] for c in range(C)])
+                A, kd, pa, value = _side_step(prob, mom, "h", G, diffuse, CA == 1, pa)
+                G = np.stack([(prob.P @ A[:, :, min(c, CA - 1)].T) * w[:, c] for c in range(C)])
+                B, kd, pb, value = _side_step(prob, mom, "d", G, diffuse, CB == 1, pb)
+                if weights_mode:
+                    w, kd, value = _weights_step(prob, mom, A, B, diffuse)
+                if phi_active:
+                    Cphi, kd, pc, value = _phi_step(prob, _terms(prob, A, B, w), diffuse, pc)
+                dead = _normalise(A, B, Cphi, w, weights_mode)
+                for k in dead:
+                    A[k] = 0.0
+                    if reseeds < _RESEEDS:  # restart a term that died from a random theta_d table
+                        reseeds += 1
+                        B[k] = 0.1 + rng.random(B[k].shape)
+                        w[k] = 1.0
+                        if Cphi is not None:
+                            Cphi[k] = 1.0
+                        pa = pb = pc = None
+                    else:
+                        B[k] = 0.0
+                if phi_active:
+                    mom = prob.moments(Cphi)
+                    # the value of the last solve is the squared error less sum w f^2
+                    err = max(s_tot + value, 0.0)
                 else:
-                    B[k] = 0.0
-            if phi_active:
-                mom = prob.moments(Cphi)
-                # the value of the last solve is the squared error less sum w f^2
-                err = max(s_tot + value, 0.0)
-            else:
-                err = float(_error(prob, _terms(prob, A, B, w), None, kd).sum())
-            if accelerate and prev is not None and not dead and it_stage > _WAIT:
-                # extrapolate along the last sweep (Ang & Gillis 2019), keep it if it helps
-                y = [np.maximum(x + beta * (x - x0), 0.0) if x is not None else None
-                     for x, x0 in zip((A, B, Cphi, w, kd), prev, strict=True)]
-                if not _normalise(y[0], y[1], y[2], y[3], weights_mode):
-                    Xy = _terms(prob, y[0], y[1], y[3])
-                    if phi_active:
-                        mom_y = prob.moments(y[2])
-                        err_y = max(_quadratic(prob, mom_y, Xy, y[4]), 0.0)
-                    else:
-                        err_y = float(_error(prob, Xy, None, y[4]).sum())
-                    if err_y < err:
-                        A, B, Cphi, w, kd = y
-                        err = err_y
+                    err = float(_error(prob, _terms(prob, A, B, w), None, kd).sum())
+                if accelerate and prev is not None and not dead and it_stage > _WAIT:
+                    # extrapolate along the last sweep (Ang & Gillis 2019), keep it if it helps
+                    y = [np.maximum(x + beta * (x - x0), 0.0) if x is not None else None
+                         for x, x0 in zip((A, B, Cphi, w, kd), prev, strict=True)]
+                    if not _normalise(y[0], y[1], y[2], y[3], weights_mode):
+                        Xy = _terms(prob, y[0], y[1], y[3])
                         if phi_active:
-                            mom = mom_y
-                        beta = min(_BETA[2], _BETA[1] * beta)
-                    else:
-                        beta = max(0.05, 0.5 * beta)
-            prev = tuple(None if x is None else x.copy() for x in (A, B, Cphi, w, kd))
-            history.append(err)
-            if err <= 1e-26 * s_tot or (
-                    not dead and last < math.inf and last - err <= stage_tol * last):
-                converged = True
-                break
-            last = err
-    e_c = _error(prob, _terms(prob, A, B, w), Cphi, kd)
+                            mom_y = prob.moments(y[2])
+                            err_y = max(_quadratic(prob, mom_y, Xy, y[4]), 0.0)
+                        else:
+                            err_y = float(_error(prob, Xy, None, y[4]).sum())
+                        if err_y < err:
+                            A, B, Cphi, w, kd = y
+                            err = err_y
+                            if phi_active:
+                                mom = mom_y
+                            beta = min(_BETA[2], _BETA[1] * beta)
+                        else:
+                            beta = max(0.05, 0.5 * beta)
+                prev = tuple(None if x is None else x.copy() for x in (A, B, Cphi, w, kd))
+                history.append(err)
+                if err <= 1e-26 * s_tot or (
+                        not dead and last < math.inf and last - err <= stage_tol * last):
+                    converged = True
+                    break
+                last = err
+        e_c = _error(prob, _terms(prob, A, B, w), Cphi, kd)
     S = prob.S
     rel = math.sqrt(float(e_c.sum() / S.sum()))
     info = {
@@ -1271,6 +1431,7 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
         "reseeds": reseeds,
         "dead_terms": len(dead),
         "history": np.sqrt(np.array(history) / float(S.sum())),
+        "antisymmetric": math.sqrt(float(data["antisymmetric"].sum() / S.sum())),
     }
     if not converged:
         dec = (history[-2] - history[-1]) / history[-2] if len(history) > 1 else float("nan")
@@ -1279,6 +1440,6 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
                       f"error {dec:.3g} > tol = {tol:g}", RuntimeWarning, stacklevel=2)
     if scalar:
         return FactoredLobe(float(kd[0]), A[:, :, 0], B[:, :, 0], phi_table=Cphi, warp=warp,
-                            warp_d=warp_d, info=info)
+                            warp_d=warp_d, phi_turn=phi_turn, info=info)
     return FactoredLobe(kd, A, B, phi_table=Cphi, weights=w if weights_mode else None,
-                        warp=warp, warp_d=warp_d, info=info)
+                        warp=warp, warp_d=warp_d, phi_turn=phi_turn, info=info)

@@ -46,7 +46,10 @@ Families
     ``d_table`` (rank, n_d, 1 or C), optionally ``phi_table`` (rank, n_phi) and
     ``weights`` (rank, C), and the node spacings ``warp`` and ``warp_d`` (the exponents of
     :data:`project.factored.WARPS` and :data:`~project.factored.D_WARPS`; not counted in
-    ``nparams``).
+    ``nparams``). ``phi_turn="full"`` (default ``"half"``, also for a BRDF whose
+    ``reciprocal`` is False) fits phi_d tables over the whole turn, which hold the
+    antisymmetric part of non-reciprocal data; such a model has ``reciprocal`` False and
+    its params hold ``phi_turn`` = 1.0 (params without it are half-turn lobes).
 ``"dsbrdf"`` (2 x K x 6 x C reals: 108 for K = 3 lobes on RGB)
     f_c = sum_k (exp[kappa_kc(theta_d) cos^gamma_kc(theta_d) theta_h] - 1), the isotropic
     directional-statistics BRDF of Nishino & Lombardi (DU-CS-10-06, 2010; eq. 6, the
@@ -267,7 +270,7 @@ from basis.validation import nonneg_int
 
 from .brdf import BRDF
 from .crossval import fold_report, out_of_fold
-from .factored import D_WARPS, WARPS, FactoredLobe, fit_factored
+from .factored import D_WARPS, PHI_TURNS, WARPS, FactoredLobe, fit_factored
 from .measurements import Measurements
 from .models import CookTorrance
 from .sampling import DEFAULT_WIDTHS, brdf_errors, peak_resolving_pairs
@@ -290,7 +293,7 @@ SAMPLE_DEFAULTS = {"seed": 0, "restarts": 4, "lobes": None, "max_nfev": None,
 #: Options of :func:`fit_model` for family "factored": those of
 #: :func:`project.factored.fit_factored`, and the error pairs.
 FACTORED_OPTIONS = ("rank", "bins", "warp", "warp_d", "color", "samples", "diffuse", "seed",
-                    "max_iter", "tol", "accelerate")
+                    "max_iter", "tol", "accelerate", "phi_turn")
 _ERROR_OPTIONS = ("error_n", "error_seed", "widths")
 _LOG_CAP = 690.0  # cap on log of a lobe value (e^690 ~ 1e299): keeps every value finite
 #: Bounds of the Lafortune exponent n and of t = n log|Cx / Cz|: (V + Cx U)^n <= e^|t|.
@@ -1009,10 +1012,11 @@ class FittedModel(BRDF):
 
     def _init_factored(self, params: Mapping[str, ArrayLike], info: dict | None) -> None:
         required = {"kd", "h_table", "d_table", "warp", "warp_d"}
-        allowed = required | {"phi_table", "weights"}
+        allowed = required | {"phi_table", "weights", "phi_turn"}
         if not required <= set(params) <= allowed:
             raise ValueError(f"params of family 'factored' must hold {sorted(required)} and "
-                             f"optionally 'phi_table' and 'weights', got {sorted(params)}")
+                             f"optionally 'phi_table', 'weights' and 'phi_turn', got "
+                             f"{sorted(params)}")
         warps = {}
         for name, table in (("warp", WARPS), ("warp_d", D_WARPS)):
             v = _param(params, name, 0)
@@ -1021,11 +1025,19 @@ class FittedModel(BRDF):
                 raise ValueError(f"params[{name!r}] must be the exponent of one of the warps "
                                  f"{table}, got {v}")
             warps[name] = names[0]
+        if "phi_turn" in params:  # absent: a half-turn lobe (the only kind before 'full')
+            v = _param(params, "phi_turn", 0)
+            names = [k for k, p in PHI_TURNS.items() if v.ndim == 0 and p == float(v)]
+            if not names:
+                raise ValueError(f"params['phi_turn'] must be the fraction of the turn of one "
+                                 f"of {PHI_TURNS}, got {v}")
+            warps["phi_turn"] = names[0]
         # FactoredLobe checks shapes, signs and channels of the tables
         self._model = FactoredLobe(
             _param(params, "kd", 1, low=0.0), params["h_table"], params["d_table"],
             phi_table=params.get("phi_table"), weights=params.get("weights"), **warps)
         self.family = "factored"
+        self.reciprocal = self._model.reciprocal
         self.params = self._model.params
         self.channels = self._model.channels
         self._scalar = self.channels == 1
@@ -1041,8 +1053,10 @@ class FittedModel(BRDF):
     def __repr__(self) -> str:
         if self.family == "factored":
             m = self._model
+            turn = "" if m.phi_turn == "half" else f", phi_turn={m.phi_turn!r}"
             return (f"FittedModel('factored', rank={m.rank}, bins={m.bins}, warp={m.warp!r}, "
-                    f"warp_d={m.warp_d!r}, channels={self.channels}, nbytes={self.nbytes})")
+                    f"warp_d={m.warp_d!r}{turn}, channels={self.channels}, "
+                    f"nbytes={self.nbytes})")
 
         def fmt(v: NDArray) -> str:
             return np.array2string(np.asarray(v), precision=4, separator=", ")
@@ -1283,7 +1297,7 @@ def _fit_factored(brdf: object, metric: str, options: dict, start: float) -> Fit
                                                          widths=widths))
     fitted.info = {**lobe.info, **err, "fit_l2": lobe.info["error"], "metric": metric,
                    "rank": lobe.rank, "bins": lobe.bins, "warp": lobe.warp,
-                   "warp_d": lobe.warp_d, "restarts": 1,
+                   "warp_d": lobe.warp_d, "phi_turn": lobe.phi_turn, "restarts": 1,
                    "samples": {"fit": "project.factored.rusinkiewicz_rule",
                                "error": f"error_n={error_n}, error_seed={error_seed}"},
                    "seconds": time.perf_counter() - start}
