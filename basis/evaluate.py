@@ -10,7 +10,9 @@ factors of the block's functions. Writing p_m = V_m T(x) in Chebyshev polynomial
 (of the same count k_m as the block has functions, so nothing is lost) turns each block into
 C_m = V_m^T B_m V_m; then per pair the kernel needs the Chebyshev values of x_i and x_o once
 (shared by every block), k_m^2 multiply-adds per block and channel, and one complex
-multiplication per block. No basis table is materialised.
+multiplication per block. No basis table is materialised. A general (non-reciprocal) block
+adds its antisymmetric part A_m = (C_m - C_m^T) / 2 on the antisymmetrised products
+T_a(x_i) T_b(x_o) - T_b(x_i) T_a(x_o), a < b; symmetric blocks skip that sum.
 
 ==================  ================  =================  ======  ===========================
 basis               a(w)              x(w)               g(w)    functions of order m
@@ -101,7 +103,8 @@ class Evaluator:
         self.min_cos = float(min_cos)
         self.fcos = cm.quantity == "f_cos"
         if cm.is_isotropic:
-            self._coef, self._tri = _chebyshev_blocks(cm.basis, cm.stored)
+            self._coef, self._tri, self._coefa, self._tria = _chebyshev_blocks(
+                cm.basis, cm.stored, general=not getattr(cm, "reciprocal", True))
         else:
             m = cm.stored[0]  # (channels, size, size)
             # one (size, channels * size) operand: b_i^T [M_0 | M_1 | ...] in one product
@@ -164,7 +167,7 @@ class Evaluator:
     def _iso(self, wi: NDArray, wo: NDArray, out: NDArray, atol: float) -> bool:
         """Run the fused kernel; True if some |w|^2 is further than ``atol`` from 1 (or NaN)."""
         flags = np.zeros((wi.shape[0] + _CHUNK - 1) // _CHUNK, dtype=np.uint8)
-        _iso_kernel(writable(wi), writable(wo), self._coef, self._tri,
+        _iso_kernel(writable(wi), writable(wo), self._coef, self._tri, self._coefa, self._tria,
                     _FORMS[self.cm.basis.kind], self.fcos, self.min_cos, atol, flags, out)
         return bool(flags.any())
 
@@ -236,13 +239,19 @@ def _factors(kind: str, z: NDArray, m: int) -> NDArray:
     return s**m * (z if kind == "harmonics" else 1.0)
 
 
-def _chebyshev_blocks(b: Basis, blocks: tuple[NDArray, ...]) -> tuple[NDArray, NDArray]:
-    """Packed Chebyshev blocks (blocks, channels, K) and the packed length of each block.
+def _chebyshev_blocks(b: Basis, blocks: tuple[NDArray, ...], *, general: bool = False
+                      ) -> tuple[NDArray, NDArray, NDArray, NDArray]:
+    """Packed Chebyshev blocks and their lengths: symmetric parts, then antisymmetric parts.
 
-    C_m = V_m^T B_m V_m is symmetric; its upper triangle is packed column by column
+    The symmetric part of C_m = V_m^T B_m V_m has its upper triangle packed column by column
     (entry (a, b), a <= b, at b (b + 1) / 2 + a), so the triangle of any leading k x k
     sub-block is a prefix of length k (k + 1) / 2: every block shares the products
     S_ab = T_a(x_i) T_b(x_o) + T_b(x_i) T_a(x_o) (a < b), S_aa = T_a(x_i) T_a(x_o).
+    With ``general`` the antisymmetric part (C_m - C_m^T) / 2 follows, its strict upper
+    triangle packed alike (entry (a, b), a < b, at b (b - 1) / 2 + a, prefix length
+    k (k - 1) / 2), on the products D_ab = T_a(x_i) T_b(x_o) - T_b(x_i) T_a(x_o); otherwise
+    those arrays are empty (length 0 per block). Shapes: (blocks, channels, K), (blocks,),
+    (blocks, channels, K'), (blocks,).
     """
     kind = b.kind
     if kind not in _FORMS:
@@ -252,6 +261,7 @@ def _chebyshev_blocks(b: Basis, blocks: tuple[NDArray, ...]) -> tuple[NDArray, N
     kmax = int(sizes.max()) if sizes.size else 0
     nch = blocks[0].shape[0]
     coef = np.zeros((len(blocks), nch, max(kmax * (kmax + 1) // 2, 1)))
+    coefa = np.zeros((len(blocks), nch, max(kmax * (kmax - 1) // 2, 1) if general else 1))
     nodes = 2 * kmax + 8  # interior Chebyshev nodes in x; z from x (a monotone map)
     t = np.cos(np.pi * (np.arange(nodes) + 0.5) / nodes)
     if kind == "zernike":
@@ -264,24 +274,33 @@ def _chebyshev_blocks(b: Basis, blocks: tuple[NDArray, ...]) -> tuple[NDArray, N
     cheb = np.polynomial.chebyshev.chebvander(t, max(kmax - 1, 0))
     ib = np.repeat(np.arange(kmax), np.arange(1, kmax + 1))  # column b of the packed entries
     ia = np.concatenate([np.arange(k + 1) for k in range(kmax)]).astype(np.int64)
+    jb = np.repeat(np.arange(kmax), np.arange(kmax))  # strict triangle: column b, row a < b
+    ja = np.concatenate([np.arange(k) for k in range(kmax)]).astype(np.int64)
     for m, idx in enumerate(cos_idx):
         k = idx.size
         if k == 0:
             continue
         poly = table[:, idx] / _factors(kind, z, m)[:, None]  # (nodes, k) polynomial parts
         v, *_ = np.linalg.lstsq(cheb[:, :k], poly, rcond=None)  # (k cheb, k functions)
-        n = k * (k + 1) // 2
+        n, na = k * (k + 1) // 2, k * (k - 1) // 2
         for c in range(nch):
             cm = v @ blocks[m][c] @ v.T
-            coef[m, c, :n] = cm[ia[:n], ib[:n]]
-    return np.ascontiguousarray(coef), (sizes * (sizes + 1) // 2).astype(np.int64)
+            sym = 0.5 * (cm + cm.T) if general else cm
+            coef[m, c, :n] = sym[ia[:n], ib[:n]]
+            if general:
+                coefa[m, c, :na] = 0.5 * (cm - cm.T)[ja[:na], jb[:na]]
+    tria = (sizes * (sizes - 1) // 2 if general else np.zeros_like(sizes)).astype(np.int64)
+    return (np.ascontiguousarray(coef), (sizes * (sizes + 1) // 2).astype(np.int64),
+            np.ascontiguousarray(coefa), tria)
 
 
 @pjit
-def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, atol, flags,
+def _iso_kernel(wi, wo, coef, tri, coefa, tria, form, fcos, min_cos, atol, flags,
                 out):  # pragma: no cover - compiled
     # wi, wo: (n, 3) unit vectors; coef: (nb, nc, K) packed Chebyshev blocks; tri: (nb,)
-    # packed length per block; form: 0 zernike, 1 odd, 2 even, 3 sh; out: (n, nc).
+    # packed length per block; coefa: (nb, nc, K') packed antisymmetric parts, tria: (nb,)
+    # their lengths (all 0 for symmetric blocks); form: 0 zernike, 1 odd, 2 even, 3 sh;
+    # out: (n, nc).
     # flags (ntask,): set to 1 for a task holding a vector with | |w|^2 - 1 | > atol or NaN.
     # Pairs in tasks of _CHUNK lanes. Only phase 1 (the geometry of each pair) is scalar;
     # every later loop runs over the contiguous lanes of one quantity (Chebyshev values,
@@ -289,6 +308,9 @@ def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, atol, flags,
     n = wi.shape[0]
     nb, nc, npk = coef.shape[0], coef.shape[1], coef.shape[2]
     kmax = int(round((math.sqrt(8 * npk + 1) - 1) / 2))
+    npa = 0
+    for m in range(nb):
+        npa = max(npa, tria[m])
     ntask = (n + _CHUNK - 1) // _CHUNK
     lift = min_cos if fcos else 0.0
     s_lift = math.sqrt(1.0 - lift * lift)
@@ -296,6 +318,7 @@ def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, atol, flags,
         ti = np.empty((max(kmax, 2), _CHUNK))
         to = np.empty((max(kmax, 2), _CHUNK))
         sp = np.empty((npk, _CHUNK))
+        sa = np.empty((max(npa, 1), _CHUNK))
         wm = np.empty((nb, _CHUNK))
         wr = np.empty(_CHUNK)
         wim = np.empty(_CHUNK)
@@ -380,6 +403,15 @@ def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, atol, flags,
             for j in range(lanes):
                 sp[t, j] = ti[b, j] * to[b, j]
             t += 1
+        # antisymmetrised products D_ab (a < b), only for general blocks
+        t = 0
+        for b in range(kmax):
+            if t >= npa:
+                break
+            for a in range(b):
+                for j in range(lanes):
+                    sa[t, j] = ti[a, j] * to[b, j] - ti[b, j] * to[a, j]
+                t += 1
         # Re (a_i conj a_o)^m
         for j in range(lanes):
             wm[0, j] = 1.0
@@ -410,6 +442,10 @@ def _iso_kernel(wi, wo, coef, tri, form, fcos, min_cos, atol, flags,
                     for j in range(lanes):
                         acc[j] += cv * sp[t, j]
                     t += 1
+                for t in range(tria[m]):
+                    cv = coefa[m, c, t]
+                    for j in range(lanes):
+                        acc[j] += cv * sa[t, j]
                 for j in range(lanes):
                     tot[j] += wm[m, j] * acc[j]
             for j in range(lanes):

@@ -1,7 +1,8 @@
-"""The symmetric coefficient matrix that holds a BRDF in a basis.
+"""The coefficient matrix that holds a BRDF in a basis.
 
-q(w_i, w_o) = b(w_i)^T M b(w_o) with M symmetric, so every representation is reciprocal
-whatever its truncation or noise (Westin, Arvo & Torrance 1992, eqs 8-10).
+q(w_i, w_o) = b(w_i)^T M b(w_o). By default M is symmetric, so every representation is
+reciprocal whatever its truncation or noise (Westin, Arvo & Torrance 1992, eqs 8-10); with
+``reciprocal=False`` M is any real matrix, for measured data that are not reciprocal.
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ _R2 = float(np.sqrt(2.0))
 
 
 class CoefficientMatrix:
-    """A BRDF held as a symmetric matrix of coefficients in a (hemi)spherical basis.
+    """A BRDF held as a matrix of coefficients in a (hemi)spherical basis.
 
     Parameters
     ----------
@@ -35,12 +36,18 @@ class CoefficientMatrix:
         The basis of both directions (``HemiZernike``, ``HemiHarmonics`` or
         ``SphericalHarmonics``).
     matrix : (size, size) or (channels, size, size) array_like of float
-        Coefficients; must be symmetric in the last two axes (relative tolerance ``rtol``)
-        unless ``symmetrize`` is set.
+        Coefficients, rows for w_i and columns for w_o. With ``reciprocal=True`` they must
+        be symmetric in the last two axes (relative tolerance ``rtol``) unless
+        ``symmetrize`` is set.
     quantity : {"f", "f_cos"}
         ``"f"``: q = f; ``"f_cos"``: q = f cos(theta_i) cos(theta_o).
     symmetrize : bool
-        Replace ``matrix`` by (M + M^T) / 2 (use for Monte Carlo or fitted estimates).
+        Replace ``matrix`` by (M + M^T) / 2 (use for Monte Carlo or fitted estimates);
+        only with ``reciprocal=True``.
+    reciprocal : bool
+        True (default): M is symmetric, f(w_i, w_o) = f(w_o, w_i). False: M is a general
+        real matrix (a non-reciprocal BRDF, e.g. a measurement); nothing is checked or
+        symmetrised. Stored in :attr:`reciprocal`.
     isotropic : bool or None
         Storage. None: store in isotropic block form if the matrix is isotropic to ``rtol``,
         densely otherwise. True: require isotropy (raises if the anisotropic part exceeds
@@ -53,10 +60,27 @@ class CoefficientMatrix:
 
     Notes
     -----
-    Isotropic storage: for an isotropic BRDF (a function of |phi_i - phi_o|) the matrix is
-    block diagonal by azimuthal order, with no cos-sin coupling and equal cos-cos and sin-sin
-    blocks; only one symmetric block per azimuthal order m = 0..order is stored
-    (``blocks[m]``, rows and columns ordered by degree), which is what ``nbytes`` reports.
+    Isotropic storage. Every basis function of azimuthal order m > 0 is R(theta) cos(m phi)
+    or R(theta) sin(m phi), the two with the same radial factors (ordered alike by degree).
+    An isotropic BRDF depends on the azimuths through dphi = phi_i - phi_o only; expand
+    q = sum_m [a_m(theta_i, theta_o) cos(m dphi) + c_m(theta_i, theta_o) sin(m dphi)].
+    Isotropic materials are also mirror symmetric about the plane of incidence
+    (q(dphi) = q(-dphi)), so c_m = 0, and
+
+        cos(m dphi) = cos(m phi_i) cos(m phi_o) + sin(m phi_i) sin(m phi_o)
+
+    makes the cos-cos block equal to the sin-sin block, B_m (rows the radial factors of
+    w_i, columns those of w_o), with no cos-sin coupling: M is block diagonal by m with
+    blocks B_0, B_1, B_1, B_2, B_2, ... . This needs no reciprocity: B_m is symmetric
+    exactly when q(theta_i, theta_o, dphi) = q(theta_o, theta_i, dphi), i.e. when the BRDF
+    is reciprocal. So one block per azimuthal order m = 0..order is stored (``blocks[m]``,
+    rows and columns ordered by degree): symmetric when ``reciprocal`` (k_m (k_m + 1) / 2
+    numbers), general otherwise (k_m^2 numbers). An isotropic BRDF that is not mirror
+    symmetric has c_m != 0, which sin(m dphi) = sin(m phi_i) cos(m phi_o) -
+    cos(m phi_i) sin(m phi_o) turns into cos-sin blocks C_m and sin-cos blocks -C_m; the
+    isotropic storage cannot hold them, and :meth:`to_isotropic` drops them (the orthogonal
+    projection onto mirror-symmetric isotropic BRDFs). ``nbytes`` reports the bytes held
+    (k_m^2 float64 per block and channel in both cases).
 
     Examples
     --------
@@ -85,6 +109,7 @@ class CoefficientMatrix:
         isotropic: bool | None = None,
         rtol: float = 1e-10,
         info: dict[str, Any] | None = None,
+        reciprocal: bool = True,
     ) -> None:
         if not isinstance(basis, Basis):
             raise TypeError(f"basis must be a basis object (e.g. basis.HemiZernike(8)), got "
@@ -92,17 +117,23 @@ class CoefficientMatrix:
         self.basis = basis
         self.quantity = choice(quantity, "quantity", QUANTITIES)
         self.info: dict[str, Any] = dict(info or {})
+        self.reciprocal = _flag(reciprocal, "reciprocal")
+        if symmetrize and not self.reciprocal:
+            raise ValueError("symmetrize must be False with reciprocal=False (a general matrix "
+                             "is kept as given); use .symmetric_part() for (M + M^T)/2")
         m = _as_matrix(matrix, basis.size)
         self._scalar = m.ndim == 2
         m = m.reshape(-1, basis.size, basis.size)
         scale = float(np.max(np.abs(m))) if m.size else 0.0
-        asym = float(np.max(np.abs(m - m.swapaxes(-1, -2)))) if m.size else 0.0
+        asym = (float(np.max(np.abs(m - m.swapaxes(-1, -2)))) if m.size and self.reciprocal
+                else 0.0)
         if symmetrize:
             m = 0.5 * (m + m.swapaxes(-1, -2))
         elif asym > rtol * scale:
             raise ValueError(f"matrix must be symmetric (reciprocity): max |M - M^T| = "
                              f"{asym:.3g} exceeds rtol * max |M| = {rtol * scale:.3g}; pass "
-                             "symmetrize=True to use (M + M^T)/2")
+                             "symmetrize=True to use (M + M^T)/2, or reciprocal=False to keep "
+                             "the general matrix")
         self._evaluators: dict[float, Evaluator] = {}
         self._blocks: list[NDArray[np.float64]] | None = None
         self._dense: NDArray[np.float64] | None = m
@@ -125,13 +156,16 @@ class CoefficientMatrix:
         quantity: str = "f_cos",
         *,
         info: dict[str, Any] | None = None,
+        reciprocal: bool = True,
     ) -> CoefficientMatrix:
         """Build an isotropic matrix from its blocks, one per azimuthal order m = 0..basis.order.
 
         ``blocks[m]`` has shape (k_m, k_m) or (channels, k_m, k_m), k_m the number of basis
-        functions with azimuthal order +m; rows and columns ordered by degree. It is
-        symmetrised.
+        functions with azimuthal order +m; rows (w_i) and columns (w_o) ordered by degree.
+        With ``reciprocal=True`` each block is symmetrised; with False it is kept as given
+        (see the class Notes for the block structure).
         """
+        reciprocal = _flag(reciprocal, "reciprocal")
         if not isinstance(basis, Basis):
             raise TypeError(f"basis must be a basis object, got {type(basis).__name__}")
         cos_idx = basis.azimuthal_blocks().cos
@@ -148,9 +182,10 @@ class CoefficientMatrix:
             if not np.all(np.isfinite(b)):
                 raise ValueError(f"blocks[{m}] must be finite")
             b = b.reshape(-1, idx.size, idx.size)
-            out.append(0.5 * (b + b.swapaxes(-1, -2)))
+            out.append(0.5 * (b + b.swapaxes(-1, -2)) if reciprocal else b.copy())
         self = cls.__new__(cls)
         self.basis, self.quantity = basis, choice(quantity, "quantity", QUANTITIES)
+        self.reciprocal = reciprocal
         self.info = dict(info or {})
         self._scalar, self._blocks, self._dense = scalar, out, None
         self._evaluators = {}
@@ -331,7 +366,10 @@ class CoefficientMatrix:
         -----
         Exact for the truncated representation: a = b(w_i)^T M h with
         h_k = int_H b_k cos(theta) dw (``quantity="f"``), or a = b(w_i)^T M g / cos(theta_i)
-        with g_k = int_H b_k dw (``"f_cos"``); see ``Basis.moments``.
+        with g_k = int_H b_k dw (``"f_cos"``); see ``Basis.moments``. The integral runs over
+        the second argument w_o, so M acts on the moments from the right; for a
+        non-reciprocal matrix the albedo of light arriving from w_o, int_H f(w_i, w_o)
+        cos(theta_i) dw_i, is that of :meth:`transpose` (b(w_o)^T M^T h).
         """
         wi = as_directions(wi, "wi")
         below = wi[..., 2] < 0
@@ -357,22 +395,24 @@ class CoefficientMatrix:
                       for b, idx in zip(self._blocks, cos_idx, strict=False)]  # fewer orders
             return CoefficientMatrix.from_blocks(
                 nb, [b[0] if self._scalar else b for b in blocks], self.quantity,
-                info=self.info)
+                info=self.info, reciprocal=self.reciprocal)
         m = self._dense[:, :nb.size, :nb.size]
         return CoefficientMatrix(nb, m[0] if self._scalar else m, self.quantity,
-                                 isotropic=False, info=self.info)
+                                 isotropic=False, info=self.info, reciprocal=self.reciprocal)
 
     def to_isotropic(self) -> CoefficientMatrix:
         """Project orthogonally onto isotropic BRDFs (the average over rotations of the surface).
 
-        The cos-cos and sin-sin blocks are averaged, every other coupling is dropped.
+        The cos-cos and sin-sin blocks are averaged, every other coupling is dropped; for a
+        non-reciprocal matrix that includes the cos-sin blocks of a BRDF that is not mirror
+        symmetric about the plane of incidence (class Notes). ``reciprocal`` is kept.
         """
         if self._blocks is not None:
             return self
         blocks = _isotropic_blocks(self.basis, self._dense)
         return CoefficientMatrix.from_blocks(
             self.basis, [b[0] if self._scalar else b for b in blocks], self.quantity,
-            info=self.info)
+            info=self.info, reciprocal=self.reciprocal)
 
     def rotated(self, angle: float) -> CoefficientMatrix:
         """Return the same BRDF turned by ``angle`` about the normal.
@@ -398,7 +438,8 @@ class CoefficientMatrix:
         phi - angle, so cos(m (phi - a)) = cos(m a) cos(m phi) + sin(m a) sin(m phi) and
         sin(m (phi - a)) = cos(m a) sin(m phi) - sin(m a) cos(m phi): b(R^-1 w) = A b(w) with
         A block diagonal (2 x 2 rotations by m a). Then f' = b(w_i)^T A^T M A b(w_o).
-        A is orthogonal, so the rotation keeps symmetry and the Frobenius norm.
+        A is orthogonal, so the rotation keeps symmetry (and ``reciprocal``) and the Frobenius
+        norm.
 
         Examples
         --------
@@ -422,7 +463,58 @@ class CoefficientMatrix:
         rot = _rotation_action(self.basis, a)
         m = rot.T @ self._dense @ rot
         return CoefficientMatrix(self.basis, m[0] if self._scalar else m, self.quantity,
-                                 symmetrize=True, isotropic=False, info=self.info)
+                                 symmetrize=self.reciprocal, isotropic=False, info=self.info,
+                                 reciprocal=self.reciprocal)
+
+    def transpose(self) -> CoefficientMatrix:
+        """Return the matrix of the transposed BRDF f'(w_i, w_o) = f(w_o, w_i): M^T.
+
+        ``self`` when reciprocal (M^T = M); otherwise a matrix of the same storage, basis,
+        quantity and channels with every block (or the dense matrix) transposed.
+
+        Examples
+        --------
+        >>> import numpy as np
+        >>> from basis import HemiZernike
+        >>> zb = HemiZernike(2)
+        >>> M = np.zeros((6, 6)); M[0, 3] = 0.2
+        >>> cm = CoefficientMatrix(zb, M, quantity="f", reciprocal=False)
+        >>> float(cm.transpose().matrix[3, 0])
+        0.2
+        """
+        if self.reciprocal:
+            return self
+        return self._like([a.swapaxes(-1, -2) for a in self.stored], reciprocal=False)
+
+    def symmetric_part(self) -> CoefficientMatrix:
+        """Return (M + M^T) / 2, the reciprocal part of the BRDF, as a reciprocal matrix.
+
+        By orthonormality it is the closest reciprocal representation in L2, and
+        ||q - q_sym|| = ||(M - M^T) / 2||_F (:meth:`antisymmetric_part`). ``self`` when
+        already reciprocal.
+        """
+        if self.reciprocal:
+            return self
+        return self._like([0.5 * (a + a.swapaxes(-1, -2)) for a in self.stored],
+                          reciprocal=True)
+
+    def antisymmetric_part(self) -> CoefficientMatrix:
+        """Return (M - M^T) / 2, the non-reciprocal part, as a general (reciprocal=False) matrix.
+
+        Zero for a reciprocal matrix.
+        """
+        return self._like([0.5 * (a - a.swapaxes(-1, -2)) for a in self.stored],
+                          reciprocal=False)
+
+    def _like(self, stored: list[NDArray], *, reciprocal: bool) -> CoefficientMatrix:
+        """Return a matrix with this one's basis, storage, quantity and info, holding ``stored``."""
+        arrs = [a[0] if self._scalar else a for a in stored]
+        if self._blocks is not None:
+            return CoefficientMatrix.from_blocks(self.basis, arrs, self.quantity,
+                                                 info=self.info, reciprocal=reciprocal)
+        return CoefficientMatrix(self.basis, arrs[0], self.quantity, isotropic=False,
+                                 info=self.info, symmetrize=reciprocal,
+                                 reciprocal=reciprocal)
 
     def to_modes(self, isotropic: bool | None = None) -> NDArray[np.float64]:
         """Coefficients in the Helmholtz surface scattering modes (HemiZernike basis only).
@@ -446,6 +538,10 @@ class CoefficientMatrix:
         if not isinstance(self.basis, HemiZernike):
             raise ValueError(f"to_modes needs a HemiZernike basis, this matrix is in "
                              f"{self.basis!r}")
+        if not self.reciprocal:
+            raise ValueError("to_modes needs a reciprocal matrix: the Helmholtz modes are "
+                             "symmetric products and cannot hold a non-reciprocal one; use "
+                             ".symmetric_part().to_modes() for its reciprocal part")
         iso = self.is_isotropic if isotropic is None else bool(isotropic)
         hm = HelmholtzModes(self.order, isotropic=iso)
         if iso:
@@ -464,7 +560,15 @@ class CoefficientMatrix:
     def __repr__(self) -> str:
         ch = "" if self._scalar else f", channels={self.channels}"
         form = "isotropic" if self.is_isotropic else "dense"
-        return f"CoefficientMatrix({self.basis!r}, quantity={self.quantity!r}{ch}, {form})"
+        rec = "" if self.reciprocal else ", reciprocal=False"
+        return (f"CoefficientMatrix({self.basis!r}, quantity={self.quantity!r}{ch}, {form}"
+                f"{rec})")
+
+
+def _flag(value: object, name: str) -> bool:
+    if not isinstance(value, bool | np.bool_):
+        raise TypeError(f"{name} must be True or False, got {value!r}")
+    return bool(value)
 
 
 def _as_matrix(matrix: ArrayLike, size: int) -> NDArray[np.float64]:

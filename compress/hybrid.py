@@ -113,10 +113,10 @@ class Hybrid:
 class _Residual:
     """f - lobe as a BRDF for projection: the values may be negative, which is the point."""
 
-    reciprocal = True
-
     def __init__(self, brdf: Any, lobe: Any) -> None:
         self.brdf, self.lobe = brdf, lobe
+        # what the quadrature may assume when sampling (the fitted lobes are reciprocal)
+        self.reciprocal = bool(getattr(brdf, "reciprocal", True))
         self.channels = max(int(brdf.channels), int(lobe.channels))
         self.isotropic = bool(brdf.isotropic) and bool(lobe.isotropic)
         self.delta = tuple(getattr(brdf, "delta", ()) or ())  # mirror terms stay residual
@@ -211,6 +211,7 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = None, kind: str = "zernike",
         raise ValueError("lobe_options apply only when the lobe is fitted here (lobe given "
                          "as a family name)")
     project_kwargs.setdefault("quantity", "f_cos")
+    project_kwargs.setdefault("reciprocal", True)  # a symmetric residual, as before
     res = project.project(_Residual(brdf, lobe), b, **project_kwargs)
     info = {"source": repr(brdf), "order": order, "kind": kind,
             "residual_truncation_error": res.info.get("truncation_error"),

@@ -547,7 +547,8 @@ def _make(spec: dict[str, Any], brdf: Any, fits: dict[tuple, Any], metric: str) 
         return cm
     # for the l2 error of q the L2(q) projection (f_cos) is the optimal expansion
     quantity = "f_cos" if metric == "l2" else "auto"
-    cm = project.project(brdf, b, nodes=_nodes(spec["order"]), quantity=quantity)
+    cm = project.project(brdf, b, nodes=_nodes(spec["order"]), quantity=quantity,
+                         reciprocal=spec.get("reciprocal", True))
     if spec.get("rank") is not None:
         cm = lowrank(cm, nonneg_int(spec["rank"], "candidate rank"))
     return cm

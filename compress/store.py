@@ -7,13 +7,13 @@
   :class:`project.factored.FactoredLobe`; it is read back as a :class:`project.FittedModel`);
 - a :class:`compress.Hybrid` whose lobe is such a model.
 
-Schema version 3
+Schema version 4
 ----------------
 Root attributes of every file:
 
 ==================  =========================================================================
 ``format``          the string ``"scatmodes.coefficients"`` (foreign files lack it)
-``schema_version``  integer, 3
+``schema_version``  integer, 4
 ``library``         ``"scatmodes <version>"`` that wrote the file (information only)
 ``content``         ``"coefficients"``, ``"model"`` or ``"hybrid"``
 ``dtype``           ``"float64"``, ``"float32"`` or ``"float16"``: precision of the stored
@@ -33,18 +33,22 @@ hybrid) holds one coefficient matrix:
 ``scalar``          bool: True if the matrix has no channel axis ((size, size)); then
                     ``channels`` is 1
 ``storage``         ``"isotropic"`` (one block per azimuthal order) or ``"dense"``
+``reciprocal``      bool: True for a symmetric matrix, False for a general one
+                    (``CoefficientMatrix.reciprocal``)
 ``dtype``           as above
 ``info``            JSON text: ``CoefficientMatrix.info`` (provenance: source, parameters,
                     method, estimated errors, timings), see *Info* below
 ==================  =========================================================================
 
-and its datasets (symmetric storage: only the upper triangle, row by row, i <= j, as
-``numpy.triu_indices``):
+and its datasets (symmetric storage, ``reciprocal`` True: only the upper triangle, row by
+row, i <= j, as ``numpy.triu_indices``, n(k) = k (k + 1) / 2 numbers for a side k; general
+storage, ``reciprocal`` False: the whole matrix, row by row (rows w_i, columns w_o),
+n(k) = k^2):
 
 - ``storage == "isotropic"``: group ``blocks`` with datasets ``m0``, ``m1``, ... one per
-  azimuthal order m = 0..top, each of shape (channels, k_m (k_m + 1) / 2), k_m the number of
+  azimuthal order m = 0..top, each of shape (channels, n(k_m)), k_m the number of
   basis functions with azimuthal order +m. Attribute ``sizes`` of the group: the k_m.
-- ``storage == "dense"``: dataset ``matrix`` of shape (channels, size (size + 1) / 2).
+- ``storage == "dense"``: dataset ``matrix`` of shape (channels, n(size)).
 
 A *model group* (the root for ``content = "model"``, the group ``lobe`` of a hybrid) holds
 one parametric model: attributes ``family`` (a family of :func:`project.fit_model`),
@@ -115,7 +119,9 @@ parameter ranges, matching channels of a hybrid's parts).
 
 Older versions
 --------------
-Each version has its own reader in ``_READERS``. Schema version 2 is version 3 restricted
+Each version has its own reader in ``_READERS``. Schema version 3 is version 4 without the
+``reciprocal`` attribute: every matrix is symmetric (read back with ``reciprocal`` True).
+Schema version 2 is version 3 restricted
 to ``content = "coefficients"`` without the ``content`` attribute and without checksums, in
 h5py's default (oldest) file format with variable-length strings. The structural checks
 apply to such files too, but changed bytes among their numbers go undetected, and on some
@@ -151,7 +157,7 @@ __all__ = ["CONTENTS", "FORMAT", "READABLE_VERSIONS", "SCHEMA_VERSION", "load", 
 #: Value of the ``format`` attribute that marks a scatmodes file.
 FORMAT = "scatmodes.coefficients"
 #: Schema written by :func:`save`.
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 #: Values of the ``content`` attribute: what a file holds.
 CONTENTS = ("coefficients", "model", "hybrid")
 #: Storage precisions accepted by :func:`save`.
@@ -173,7 +179,7 @@ _LOW_LEVEL = (OSError, RuntimeError, KeyError, TypeError, IndexError, AttributeE
 
 
 def save(obj: Any, path: str | os.PathLike, *, dtype: str = "float64") -> Path:
-    """Write a coefficient matrix, a fitted model or a hybrid to an HDF5 file (schema 3).
+    """Write a coefficient matrix, a fitted model or a hybrid to an HDF5 file (schema 4).
 
     Parameters
     ----------
@@ -365,10 +371,11 @@ def _matrix_part(cm: CoefficientMatrix, dtype: str, what: str) -> _Part:
     _check_range(arrays.values(), dtype, what)
     attrs = {"basis_kind": cm.basis.kind, "basis_order": cm.basis.order,
              "quantity": cm.quantity, "channels": cm.channels, "scalar": bool(cm.is_scalar),
-             "storage": "isotropic" if cm.is_isotropic else "dense", "dtype": dtype,
+             "storage": "isotropic" if cm.is_isotropic else "dense",
+             "reciprocal": bool(cm.reciprocal), "dtype": dtype,
              "info": _info_text(cm.info, f"{what}'s info")}
     if cm.is_isotropic:
-        sizes = np.array([_side(a.shape[1]) for a in arrays.values()], dtype=np.int64)
+        sizes = np.array([a.shape[-1] for a in cm.stored], dtype=np.int64)
         return _Part(attrs, {"blocks": {"sizes": sizes}},
                      {f"blocks/{m}": (a.astype(dtype), {}) for m, a in arrays.items()})
     return _Part(attrs, {}, {"matrix": (arrays["matrix"].astype(dtype), {})})
@@ -482,20 +489,19 @@ def _encode(obj: Any) -> Any:
 
 
 def _packed(cm: CoefficientMatrix) -> dict[str, NDArray[np.float64]]:
-    """Upper triangles, (channels, k (k + 1) / 2), of each block or of the dense matrix."""
+    """Upper triangles, (channels, k (k + 1) / 2), of each block or of the dense matrix.
+
+    A general matrix (``cm.reciprocal`` False): the whole blocks, (channels, k^2), row by row.
+    """
+    def pack(blk: NDArray) -> NDArray:
+        if not cm.reciprocal:
+            return np.ascontiguousarray(blk.reshape(blk.shape[0], -1))
+        iu = np.triu_indices(blk.shape[-1])
+        return np.ascontiguousarray(blk[:, iu[0], iu[1]])
+
     if cm.is_isotropic:
-        out = {}
-        for m, blk in enumerate(cm.stored):
-            iu = np.triu_indices(blk.shape[-1])
-            out[f"m{m}"] = np.ascontiguousarray(blk[:, iu[0], iu[1]])
-        return out
-    dense = cm.stored[0]
-    iu = np.triu_indices(dense.shape[-1])
-    return {"matrix": np.ascontiguousarray(dense[:, iu[0], iu[1]])}
-
-
-def _side(n_packed: int) -> int:
-    return int(round((math.sqrt(8 * n_packed + 1) - 1) / 2))
+        return {f"m{m}": pack(blk) for m, blk in enumerate(cm.stored)}
+    return {"matrix": pack(cm.stored[0])}
 
 
 # -- reading ----------------------------------------------------------------------------------
@@ -702,7 +708,9 @@ class _Reader:
                          "overflows (evaluations would be infinite)")
 
     # -- content ----------------------------------------------------------------------------
-    def matrix(self, g: h5py.Group, kind: str, dtype: np.dtype | None) -> CoefficientMatrix:
+    def matrix(self, g: h5py.Group, kind: str, dtype: np.dtype | None, *,
+               general: bool = False) -> CoefficientMatrix:
+        """Read a matrix group; ``general``: the schema has the ``reciprocal`` attribute."""
         where = g.name
         if kind not in basis.KINDS:
             self.damaged(f"{where.rstrip('/')}/@basis_kind names an unknown basis kind "
@@ -712,6 +720,7 @@ class _Reader:
         channels = self.integer(g, "channels", 1)
         scalar = self.flag(g, "scalar")
         storage = self.text(g, "storage", ("isotropic", "dense"))
+        reciprocal = self.flag(g, "reciprocal") if general else True
         if scalar and channels != 1:
             self.damaged(f"the matrix in {where} is marked scalar (no channel axis) but holds "
                          f"{channels} channels")
@@ -719,9 +728,9 @@ class _Reader:
         sizes = _block_sizes(kind, order)
         size = sum(sizes) + sum(sizes[1:])  # every m > 0 has cos and sin functions
         if storage == "isotropic":
-            packed = [k * (k + 1) // 2 for k in sizes]
+            packed = [k * (k + 1) // 2 if reciprocal else k * k for k in sizes]
         else:
-            packed = [size * (size + 1) // 2]
+            packed = [size * (size + 1) // 2 if reciprocal else size * size]
         need = channels * sum(packed) * (8 if dtype is None else dtype.itemsize)
         if need > self.size:
             self.damaged(f"it claims a {kind} basis of order {order} with {channels} "
@@ -730,10 +739,11 @@ class _Reader:
         if storage == "dense":
             data = self.dataset(g, "matrix", (channels, packed[0]), dtype)
             self.bounded([data], f"the coefficients in {where}")
-            m = _unpack(data, size, channels)
+            m = _unpack(data, size, channels, reciprocal)
             b = basis.make_basis(kind, order)
             return self.build(lambda: CoefficientMatrix(b, m[0] if scalar else m, quantity,
-                                                         isotropic=False, info=info))
+                                                         isotropic=False, info=info,
+                                                         reciprocal=reciprocal))
         blocks_g = self.group(g, "blocks")
         claimed = self.attr(blocks_g, "sizes", required=False)
         if claimed is not None and not (isinstance(claimed, np.ndarray)
@@ -752,10 +762,11 @@ class _Reader:
         datas = [self.dataset(blocks_g, f"m{m}", (channels, n), dtype)
                  for m, n in enumerate(packed)]
         self.bounded(datas, f"the coefficients in {where}")
-        blocks = [_unpack(x, k, channels) for x, k in zip(datas, sizes, strict=True)]
+        blocks = [_unpack(x, k, channels, reciprocal) for x, k in zip(datas, sizes, strict=True)]
         b = basis.make_basis(kind, order)
         return self.build(lambda: CoefficientMatrix.from_blocks(
-            b, [x[0] if scalar else x for x in blocks], quantity, info=info))
+            b, [x[0] if scalar else x for x in blocks], quantity, info=info,
+            reciprocal=reciprocal))
 
     def model(self, g: h5py.Group) -> Any:
         from project.fitting import FAMILIES, FittedModel
@@ -817,24 +828,28 @@ def _read_v2(r: _Reader) -> CoefficientMatrix:
     return r.matrix(r.f, r.text(r.f, "basis_kind"), r.dtype(r.f))
 
 
-def _read_v3(r: _Reader) -> Any:
+def _read_v3(r: _Reader, *, general: bool = False) -> Any:
     from .hybrid import Hybrid
 
     f = r.f
     content = r.text(f, "content", CONTENTS)
     r.dtype(f)
     if content == "coefficients":
-        return r.matrix(f, r.text(f, "basis_kind"), r.dtype(f))
+        return r.matrix(f, r.text(f, "basis_kind"), r.dtype(f), general=general)
     if content == "model":
         return r.model(f)
     info = r.info(f)
     lobe = r.model(r.group(f, "lobe"))
     res_g = r.group(f, "residual")
-    residual = r.matrix(res_g, r.text(res_g, "basis_kind"), r.dtype(res_g))
+    residual = r.matrix(res_g, r.text(res_g, "basis_kind"), r.dtype(res_g), general=general)
     return r.build(lambda: Hybrid(lobe, residual, info))
 
 
-_READERS = {1: _read_v1, 2: _read_v2, 3: _read_v3}
+def _read_v4(r: _Reader) -> Any:
+    return _read_v3(r, general=True)
+
+
+_READERS = {1: _read_v1, 2: _read_v2, 3: _read_v3, 4: _read_v4}
 #: Schema versions :func:`load` understands.
 READABLE_VERSIONS = tuple(sorted(_READERS))
 
@@ -863,7 +878,10 @@ def _kind(v: Any) -> str:
     return f"{type(v).__name__} {text[:60]}{'...' if len(text) > 60 else ''}"
 
 
-def _unpack(data: NDArray, k: int, channels: int) -> NDArray[np.float64]:
+def _unpack(data: NDArray, k: int, channels: int, reciprocal: bool = True
+            ) -> NDArray[np.float64]:
+    if not reciprocal:
+        return np.array(data, dtype=np.float64).reshape(channels, k, k)
     out = np.zeros((channels, k, k))
     iu = np.triu_indices(k)
     out[:, iu[0], iu[1]] = data

@@ -566,7 +566,8 @@ def study(brdf: Any, kind: str | Sequence[str], orders: Sequence[int], *,
             b = make_basis(k, order)
             with warnings.catch_warnings(record=True) as caught:
                 warnings.simplefilter("always")
-                cm = project.project(brdf, b, quantity=quantity, **project_kwargs)
+                cm = project.project(brdf, b, quantity=quantity,
+                                     **{"reciprocal": True, **project_kwargs})
             messages += [str(c.message) for c in caught]
             if smooth is not None:
                 cm = _smooth(cm, smooth)

@@ -1,7 +1,8 @@
 """Making a coefficient matrix smaller: truncation, smoothing, low rank, storage precision.
 
-Every operation returns a new :class:`basis.CoefficientMatrix` (symmetric, so the result is
-still exactly reciprocal) and records what it did, and what it cost, in ``info``:
+Every operation returns a new :class:`basis.CoefficientMatrix` of the same form (a symmetric
+matrix stays symmetric, so the result is still exactly reciprocal; a general one,
+``reciprocal=False``, stays general) and records what it did, and what it cost, in ``info``:
 
 - :func:`truncate`: keep the basis functions of degree <= order (a prefix of every basis).
 - :func:`smooth`: multiply entry (j, k) by w(d_j) w(d_k), d the degree, with w a
@@ -9,7 +10,8 @@ still exactly reciprocal) and records what it did, and what it cost, in ``info``
   sigma factors or a Hann window. The separable product keeps M symmetric. Reports the
   fraction of negative BRDF values and the Gibbs overshoot before and after.
 - :func:`lowrank`: the symmetric eigen-decomposition of each block (isotropic) or of the
-  dense matrix, per channel, keeping the ``rank`` terms of largest |eigenvalue|.
+  dense matrix, per channel, keeping the ``rank`` terms of largest |eigenvalue|; for a
+  general matrix the singular value decomposition instead (Eckart-Young holds for both).
 - :func:`precision`: coefficients rounded to float32 or float16, with the error that costs.
 
 Errors of coefficient changes are exact L2 errors of the represented quantity q (Parseval:
@@ -52,9 +54,9 @@ def _with(cm: CoefficientMatrix, stored: list[NDArray] | NDArray, info: dict) ->
     scalar = cm.is_scalar
     if cm.is_isotropic:
         return CoefficientMatrix.from_blocks(cm.basis, [b[0] if scalar else b for b in stored],
-                                             cm.quantity, info=info)
+                                             cm.quantity, info=info, reciprocal=cm.reciprocal)
     return CoefficientMatrix(cm.basis, stored[0] if scalar else stored, cm.quantity,
-                             isotropic=False, info=info)
+                             isotropic=False, info=info, reciprocal=cm.reciprocal)
 
 
 def _stored(cm: CoefficientMatrix) -> list[NDArray] | NDArray:
@@ -187,6 +189,9 @@ def smooth(cm: CoefficientMatrix, kind: str = "half-gaussian", *, start: int | N
            width: float | None = None, brdf: Any = None) -> CoefficientMatrix:
     """Attenuate high degrees to reduce Gibbs ringing, symmetrically (reciprocity is kept).
 
+    The same factors apply to rows (w_i) and columns (w_o), so a symmetric matrix stays
+    symmetric and a general one general.
+
     Parameters
     ----------
     cm : basis.CoefficientMatrix
@@ -308,27 +313,30 @@ def _random_pairs(n: int, seed: int, *, max_theta: float = np.pi / 2
 
 # -- low rank -----------------------------------------------------------------------------------
 def lowrank(cm: CoefficientMatrix, rank: int) -> CoefficientMatrix:
-    """Return the best symmetric approximation with ``rank`` separable terms per channel.
+    """Return the best approximation of the same form with ``rank`` separable terms per channel.
 
     Parameters
     ----------
     cm : basis.CoefficientMatrix
     rank : int
-        Number of eigen-terms kept per channel, >= 1. Isotropic matrices: the eigenpairs of
-        all blocks compete, and a term of block m > 0 stands for its cos and sin copies
-        (two dense terms sharing one eigenvalue and one stored vector). Dense matrices: the
-        terms of the full matrix.
+        Number of terms kept per channel, >= 1. Symmetric (reciprocal) matrices: eigen-terms
+        lambda u u^T; general ones (``cm.reciprocal`` False): singular terms s u v^T (the
+        truncated SVD). Isotropic matrices: the terms of all blocks compete, and a term of
+        block m > 0 stands for its cos and sin copies (two dense terms sharing one value and
+        its stored vectors). Dense matrices: the terms of the full matrix.
 
     Returns
     -------
     basis.CoefficientMatrix
-        Sum of the kept terms lambda u u^T, chosen by the L2 error each removes
-        (multiplicity x lambda^2, largest first; ties by block order), which is optimal for
-        a budget of stored terms.
+        Sum of the kept terms lambda u u^T (or s u v^T), chosen by the L2 error each
+        removes (multiplicity x lambda^2, largest first; ties by block order), which is
+        optimal for a budget of stored terms.
         ``info["lowrank"]`` holds ``rank``, ``error`` (relative L2 change of q, exact by
         Parseval and Eckart-Young: sqrt of the dropped sum of (multiplicity) lambda^2 over
-        the total), ``numbers`` (stored reals: per term one eigenvalue and its vector,
-        per channel) and ``eigenvalues`` ((channels, rank) kept, ordered).
+        the total), ``numbers`` (stored reals, all channels: per symmetric term one
+        eigenvalue and its vector, 1 + k; per general term one singular value and two
+        vectors, 1 + 2 k) and ``eigenvalues`` ((channels, rank) kept, ordered), or for a
+        general matrix ``singular_values``.
 
     Examples
     --------
@@ -359,26 +367,34 @@ def lowrank(cm: CoefficientMatrix, rank: int) -> CoefficientMatrix:
     if rank > total_terms:
         raise ValueError(f"rank must be <= {total_terms} (the number of eigen-terms of "
                          f"{cm!r}), got {rank}")
+    sym = cm.reciprocal
     for c in range(nch):
         terms = []  # (multiplicity lambda^2, block, index)
         decomp = []
         for m, b in enumerate(blocks):
-            lam, vec = np.linalg.eigh(b[c]) if b.shape[-1] else (np.empty(0), np.empty((0, 0)))
-            decomp.append((lam, vec))
+            k = b.shape[-1]
+            if sym:
+                lam, vec = np.linalg.eigh(b[c]) if k else (np.empty(0), np.empty((0, 0)))
+                left = right = vec
+            else:
+                left, lam, rt = (np.linalg.svd(b[c]) if k
+                                 else (np.empty((0, 0)), np.empty(0), np.empty((0, 0))))
+                right = rt.T
+            decomp.append((lam, left, right))
             terms.extend((mult[m] * float(x) ** 2, m, i) for i, x in enumerate(lam))
         terms.sort(key=lambda t: (-t[0], t[1], t[2]))
         for r, (_, m, i) in enumerate(terms[:rank]):
-            lam, vec = decomp[m]
-            u = vec[:, i]
-            new[m][c] += lam[i] * np.outer(u, u)
+            lam, left, right = decomp[m]
+            u, v = left[:, i], right[:, i]
+            new[m][c] += lam[i] * np.outer(u, v)
             kept_vals[c, r] = lam[i]
-            numbers += 1 + u.size
-    # make each block exactly symmetric (outer products are symmetric up to rounding)
-    new = [0.5 * (b + b.swapaxes(-1, -2)) for b in new]
+            numbers += 1 + u.size * (1 if sym else 2)
+    if sym:  # make each block exactly symmetric (outer products are symmetric up to rounding)
+        new = [0.5 * (b + b.swapaxes(-1, -2)) for b in new]
     stored_new: list[NDArray] | NDArray = new if isinstance(full, list) else new[0]
     info = dict(cm.info)
     info["lowrank"] = dict(rank=rank, error=_rel_change(full, stored_new), numbers=numbers,
-                           eigenvalues=kept_vals)
+                           **{"eigenvalues" if sym else "singular_values": kept_vals})
     return _with(cm, stored_new, info)
 
 
@@ -394,8 +410,9 @@ def precision(cm: CoefficientMatrix, dtype: str) -> CoefficientMatrix:
     Returns
     -------
     basis.CoefficientMatrix
-        ``info["precision"]``: ``dtype``, ``bytes`` (the unique coefficients, symmetric
-        storage, at that precision: what ``compress.save(..., dtype=...)`` writes),
+        ``info["precision"]``: ``dtype``, ``bytes`` (the unique coefficients, symmetric or
+        general storage (:func:`unique_coefficients`), at that precision: what
+        ``compress.save(..., dtype=...)`` writes),
         ``error`` (relative L2 change of q, exact by Parseval) and ``max_abs`` (largest
         coefficient change).
 
@@ -437,9 +454,22 @@ def precision(cm: CoefficientMatrix, dtype: str) -> CoefficientMatrix:
 def unique_coefficients(cm: CoefficientMatrix) -> int:
     """Count the real numbers stored with symmetric (and, if isotropic, block) storage.
 
-    All channels are counted.
+    All channels are counted. A symmetric block (or dense matrix) of side k holds
+    k (k + 1) / 2 numbers, a general one (``cm.reciprocal`` False) k^2.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from basis import HemiZernike, CoefficientMatrix
+    >>> zb = HemiZernike(2)
+    >>> M = np.arange(36.0).reshape(6, 6)
+    >>> unique_coefficients(CoefficientMatrix(zb, M, reciprocal=False, isotropic=False))
+    36
+    >>> unique_coefficients(CoefficientMatrix(zb, M, symmetrize=True, isotropic=False))
+    21
     """
     cm = _check_cm(cm)
-    full = _stored(cm)
-    blocks = full if isinstance(full, list) else [full]
+    blocks = cm.stored
+    if not cm.reciprocal:
+        return int(sum(b.shape[0] * b.shape[-1] ** 2 for b in blocks))
     return int(sum(b.shape[0] * b.shape[-1] * (b.shape[-1] + 1) // 2 for b in blocks))

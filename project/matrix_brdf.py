@@ -174,7 +174,7 @@ class MatrixBRDF(BRDF):
         self.matrix = matrix
         self.channels = matrix.channels
         self.isotropic = matrix.is_isotropic
-        self.reciprocal = True
+        self.reciprocal = bool(getattr(matrix, "reciprocal", True))
         self._scalar = matrix.is_scalar
         self.tol, self.min_cos = tol, min_cos
         if self.isotropic:

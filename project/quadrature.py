@@ -13,8 +13,9 @@ F_m(z_i, z_o) = int_0^{2 pi} q cos(m dphi) d dphi the matrix is block diagonal b
 P_m the (nodes, k_m) table of the radial factors with azimuthal order m and W the z weights.
 The samples form a (z_i, z_o, dphi) grid with dphi in [0, pi]; when q is also reciprocal and
 mirror symmetric (y -> -y), so that F_m is symmetric in (z_i, z_o), only z_i <= z_o is
-evaluated. Measured tables need not be mirror symmetric; both triangles are then sampled and
-the symmetrised blocks project the even part of q. That is O(N^2 N_phi) evaluations and
+evaluated. Measured tables need not be mirror symmetric; both triangles are then sampled
+(and, for a BRDF that is neither reciprocal nor mirror symmetric, both signs of dphi) and
+the blocks project the even part of q. That is O(N^2 N_phi) evaluations and
 O(N^3) arithmetic instead of the O(N^4) of a dense product rule. A pilot chooses the
 (z_i, z_o) rule among the tensor Gauss rules in z and in sqrt(z) and a rule in
 ((z_i + z_o) / 2, z_i - z_o) graded towards the diagonal, where the specular ridge of a
@@ -26,6 +27,11 @@ azimuths, processed a few (z_i, z_o) pairs at a time so memory stays bounded; re
 only on the pairs z_i <= z_o (the other half is the transpose). Their z rule is Gauss in z or
 in sqrt(z), chosen by a pilot: the second removes the 1/sqrt(cos theta) horizon singularity
 of Ward's lobe, on which Gauss in z converges only like 1/N.
+
+Non-reciprocal BRDFs (``brdf.reciprocal`` False) are sampled on every (z_i, z_o) pair, so
+the matrix is general; ``project(..., reciprocal=True)`` keeps its symmetric part, the
+projection of the reciprocal part (q + q^T) / 2, which is also the closest reciprocal
+representation in L2.
 
 The node counts start from the order; the z and azimuth rules are doubled separately, each
 time the one whose last doubling changed the result more, until the sum of the two changes
@@ -70,6 +76,7 @@ def project(
     max_evaluations: int = 100_000_000,
     samples: int | None = None,
     seed: int = 0,
+    reciprocal: bool | None = None,
 ) -> CoefficientMatrix:
     """Coefficient matrix of a BRDF in a basis (the L2 projection onto the basis products).
 
@@ -121,6 +128,14 @@ def project(
         2**16 per scramble).
     seed : int
         Seed of the Sobol scrambles.
+    reciprocal : bool or None
+        Form of the matrix. None (default): ``brdf.reciprocal`` (True when the BRDF does not
+        say). True: symmetric, the projection of the reciprocal part (q + q^T) / 2 of a
+        non-reciprocal BRDF (the closest reciprocal representation; the rest, the
+        antisymmetric part, is lost). False: the general matrix of
+        :class:`basis.CoefficientMatrix` with ``reciprocal=False``, which also holds the
+        antisymmetric part (twice the numbers of a symmetric one; for a reciprocal BRDF it
+        is symmetric to quadrature precision). ``"lstsq"`` supports True only.
 
     Returns
     -------
@@ -129,7 +144,12 @@ def project(
         ``evaluations``, ``error_estimate`` (absolute, max over entries), ``rel_error``,
         ``converged``, ``truncation_error`` (relative L2 error of the truncated expansion
         against the BRDF itself, by Parseval; None with mirror terms, whose norm is
-        infinite), ``tail_fraction`` (relative RMS of the coefficients of the last two
+        infinite; for ``reciprocal=True`` on a non-reciprocal BRDF it includes the
+        antisymmetric part left out), ``reciprocal`` (the form chosen),
+        ``antisymmetric_part`` (||(M - M^T) / 2||_F / ||q||, max over channels, of the general
+        projection: the relative L2 norm of the projected antisymmetric part, which a
+        symmetric matrix misses; 0 when sampled only on z_i <= z_o), ``tail_fraction``
+        (relative RMS of the coefficients of the last two
         degrees), ``seconds``, for anisotropic BRDFs ``asymmetry`` (max |M - M^T| / max |M|
         before symmetrising; 0 for reciprocal ones, which are symmetric by construction) and,
         after refinement, ``azimuth_rule`` and ``z_rule`` (``"gauss"``, ``"sqrt"`` or, isotropic
@@ -166,6 +186,16 @@ def project(
     quantity = choice(quantity, "quantity", ("auto", "f_cos", "f"))
     method = choice(method, "method", ("quadrature", "montecarlo", "lstsq"))
     iso = bool(brdf.isotropic) if isotropic is None else bool(isotropic)
+    if reciprocal is None:
+        rec = bool(getattr(brdf, "reciprocal", True))
+    elif isinstance(reciprocal, bool | np.bool_):
+        rec = bool(reciprocal)
+    else:
+        raise TypeError(f"reciprocal must be None, True or False, got {reciprocal!r}")
+    if method == "lstsq" and not rec:
+        raise NotImplementedError("method='lstsq' fits reciprocal (symmetric) matrices only; "
+                                  "use method='quadrature' or 'montecarlo' with "
+                                  "reciprocal=False")
     deltas = tuple(getattr(brdf, "delta", ()) or ())
     if quantity == "auto":
         quantity = default_quantity(basis, brdf)
@@ -190,23 +220,26 @@ def project(
         blocks_or_dense, info = _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes,
                                             max_evaluations)
     elif method == "montecarlo":
-        blocks_or_dense, info = _montecarlo(brdf, basis, quantity, iso, samples, seed)
+        blocks_or_dense, info = _montecarlo(brdf, basis, quantity, iso, samples, seed, rec)
     else:
         return _lstsq(brdf, basis, quantity, iso, samples, seed, t0)
 
     scalar = _is_scalar(brdf)
     if deltas:
         blocks_or_dense = _add_deltas(blocks_or_dense, deltas, basis, iso)
+    norm2 = info.pop("norm2")
+    info["reciprocal"] = rec
+    info["antisymmetric_part"] = _antisymmetric_part(blocks_or_dense, norm2)
     if iso:
         blocks = [b[..., 0] if scalar else np.moveaxis(b, -1, 0) for b in blocks_or_dense]
-        cm = CoefficientMatrix.from_blocks(basis, blocks, quantity)
+        cm = CoefficientMatrix.from_blocks(basis, blocks, quantity, reciprocal=rec)
     else:
         m = blocks_or_dense
         scale = float(np.max(np.abs(m))) or 1.0
         info["asymmetry"] = float(np.max(np.abs(m - m.swapaxes(0, 1)))) / scale
         m = m[..., 0] if scalar else np.moveaxis(m, -1, 0)
-        cm = CoefficientMatrix(basis, m, quantity, symmetrize=True, isotropic=False)
-    norm2 = info.pop("norm2")
+        cm = CoefficientMatrix(basis, m, quantity, symmetrize=rec, isotropic=False,
+                               reciprocal=rec)
     trunc = None if deltas else truncation_error(cm, norm2)
     info.update(tail_fraction=tail_fraction(cm), truncation_error=trunc,
                 seconds=time.perf_counter() - t0, source=repr(brdf), quantity=quantity)
@@ -224,6 +257,20 @@ def project(
 #: transpose, the asymmetry check, the channel-first copy and CoefficientMatrix's symmetric
 #: part and checks.
 _RESULT_COPIES = 6
+
+
+def _antisymmetric_part(blocks_or_dense: Any, norm2: NDArray) -> float:
+    """||(M - M^T) / 2||_F / ||q||, max over channels (blocks m > 0 count twice)."""
+    parts = blocks_or_dense if isinstance(blocks_or_dense, list) else [blocks_or_dense]
+    mult = 1.0 if not isinstance(blocks_or_dense, list) else None
+    a2 = np.zeros(np.shape(norm2))
+    for m, b in enumerate(parts):  # (k, k, channels)
+        d = 0.5 * (b - b.swapaxes(0, 1))
+        a2 = a2 + (mult or (1.0 if m == 0 else 2.0)) * np.sum(d * d, axis=(0, 1))
+    norm2 = np.asarray(norm2, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = np.where(norm2 > 0, np.sqrt(a2 / np.where(norm2 > 0, norm2, 1.0)), 0.0)
+    return float(np.max(rel, initial=0.0))
 
 
 def default_quantity(basis: Basis, brdf: Any = None) -> str:
@@ -346,8 +393,10 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluatio
     order = basis.order
     step = _aniso_rule
     if iso:  # folding z_i <= z_o needs reciprocity and mirror symmetry (see _iso_rule)
-        fold = bool(getattr(brdf, "reciprocal", True)) and _mirror_symmetric(brdf)
-        step = partial(_iso_rule, fold=fold)
+        brdf_rec, mirror = bool(getattr(brdf, "reciprocal", True)), _mirror_symmetric(brdf)
+        fold = brdf_rec and mirror
+        signs = 1 if brdf_rec or mirror else 2  # both signs of dphi sampled
+        step = partial(_iso_rule, fold=fold, both_signs=signs == 2)
     if nodes is not None:
         nz, nphi = (nonneg_int(v, "nodes") for v in nodes)
         if nz < 1 or nphi < 2 * order + 2:
@@ -364,7 +413,7 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluatio
     budget = nonneg_int(max_evaluations, "max_evaluations")
 
     def cost(nz: int, nphi: int) -> int:
-        return (nz * nz * (nphi // 2 + 1) // (2 if fold else 1) if iso
+        return (nz * nz * (nphi // 2 + 1) // (2 if fold else 1) * signs if iso
                 else nz * nz * max(4 * order + 2, nphi // 2) * (nphi + 2))
 
     # z and phi converge at different rates (a lobe near the pole needs few Gauss nodes, the
@@ -555,7 +604,8 @@ def _mirror_symmetric(brdf: Any) -> bool:
     return bool(np.max(np.abs(a - b)) <= 1e-10 * np.max(np.abs(a)))
 
 
-def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=None):
+def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=None,
+              both_signs=False):
     """Isotropic blocks [(k_m, k_m, channels)] with nz z nodes and nphi azimuths.
 
     ``zmap`` ``"gauss"`` or ``"sqrt"`` is a tensor rule in (z_i, z_o) (_z_nodes);
@@ -567,7 +617,11 @@ def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=Non
     reciprocal) samples only z_i >= z_o and mirrors; that needs F_m symmetric in
     (z_i, z_o), i.e. reciprocal and even. Otherwise both triangles are sampled: the pair
     (z_o, z_i) at -dphi is (z_i, z_o) at +dphi by reciprocity and isotropy, so the
-    symmetrised blocks (CoefficientMatrix.from_blocks) project the even part exactly.
+    symmetrised blocks (CoefficientMatrix.from_blocks) project the even part exactly. A
+    BRDF that is neither reciprocal nor mirror symmetric gives no such relation:
+    ``both_signs`` then samples w_o at +dphi as well and projects the even part
+    (q(dphi) + q(-dphi)) / 2, so the general blocks are exact too; ||q||^2 then counts both
+    signs (the odd part, which no isotropic block holds, included).
     """
     half = nphi // 2
     dphi, wphi = _azimuth_nodes(nphi, grading)  # [0, pi]
@@ -604,10 +658,22 @@ def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=Non
         wo[..., 1] = -sto[sl, None] * sd
         wo[..., 2] = zo[sl, None]
         q = _eval_pairs(brdf, wi.reshape(-1, 3), wo.reshape(-1, 3), ch).reshape(n, half + 1, ch)
+        if both_signs:
+            wo[..., 1] *= -1.0
+            q2 = _eval_pairs(brdf, wi.reshape(-1, 3), wo.reshape(-1, 3),
+                             ch).reshape(n, half + 1, ch)
+            sq = 0.5 * (q * q + q2 * q2)
+            q = 0.5 * (q + q2)
+            del q2
+        else:
+            sq = q * q
         if quantity == "f_cos":
-            q *= (zi[sl] * zo[sl])[:, None, None]
+            zz = (zi[sl] * zo[sl])[:, None, None]
+            q *= zz
+            sq *= zz * zz
         qt = q.transpose(0, 2, 1)  # (n, ch, half + 1): one matrix product for F_m
-        norm2 += 4.0 * np.pi * np.einsum("a,ac->c", pw[sl] * twice[sl], (qt * qt) @ wphi)
+        norm2 += 4.0 * np.pi * np.einsum("a,ac->c", pw[sl] * twice[sl],
+                                         sq.transpose(0, 2, 1) @ wphi)
         fm[sl] = (qt @ cosm).transpose(0, 2, 1)
     az = basis.azimuthal
     blocks = []
@@ -623,7 +689,7 @@ def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=Non
                     blocks[m][..., k] += (a * wf[:, k, None]).T @ b
         if reciprocal:
             blocks = [b + b.swapaxes(0, 1) for b in blocks]
-        return blocks, zi.size * (half + 1), norm2
+        return blocks, zi.size * (half + 1) * (2 if both_signs else 1), norm2
     full = np.empty((nz, nz, top + 1, ch))
     full[ia, ib] = fm
     if reciprocal:
@@ -633,7 +699,7 @@ def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=Non
         pm = p[:, az == m]
         c = 2.0 * np.pi if m == 0 else np.pi
         blocks.append(c * np.einsum("aj,abc,bk->jkc", pm, full[:, :, m], pm, optimize=True))
-    return blocks, zi.size * (half + 1), norm2
+    return blocks, zi.size * (half + 1) * (2 if both_signs else 1), norm2
 
 
 def _aniso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", nfi=None):
@@ -798,7 +864,7 @@ def _uniform_hemisphere(u: NDArray, v: NDArray) -> NDArray:
     return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
 
 
-def _montecarlo(brdf, basis, quantity, iso, samples, seed):
+def _montecarlo(brdf, basis, quantity, iso, samples, seed, rec=True):
     n = 1 << 16 if samples is None else nonneg_int(samples, "samples")
     if n < 2:
         raise ValueError(f"samples must be >= 2 for method='montecarlo', got {n}")
@@ -820,7 +886,7 @@ def _montecarlo(brdf, basis, quantity, iso, samples, seed):
             sq += np.sum(q * q, axis=0)
         norm2 = sq * (2.0 * np.pi) ** 2 / n
         est = acc * (2.0 * np.pi) ** 2 / n
-        ests.append(0.5 * (est + est.swapaxes(0, 1)))
+        ests.append(0.5 * (est + est.swapaxes(0, 1)) if rec else est)
     ests = np.array(ests)
     mean = ests.mean(axis=0)
     stderr = ests.std(axis=0, ddof=1) / np.sqrt(reps)
@@ -829,7 +895,8 @@ def _montecarlo(brdf, basis, quantity, iso, samples, seed):
                 error_estimate=float(np.max(stderr)), rel_error=float(np.max(stderr)) / scale,
                 converged=True, standard_error=stderr, norm2=norm2)
     if iso:
-        iso_cm = CoefficientMatrix(basis, np.moveaxis(mean, -1, 0), isotropic=False).to_isotropic()
+        iso_cm = CoefficientMatrix(basis, np.moveaxis(mean, -1, 0), isotropic=False,
+                                   reciprocal=rec).to_isotropic()
         return [np.moveaxis(b, 0, -1) for b in iso_cm.stored], info
     return mean, info
 

@@ -314,3 +314,135 @@ def test_stored_views(iso, channels, rng):
         assert len(stored) == 1 and np.array_equal(stored[0].reshape(shape), cm.matrix)
     with pytest.raises(ValueError, match="read-only"):
         stored[0][..., 0, 0] = 1.0
+
+
+# -- general (non-reciprocal) matrices --------------------------------------------------------
+def _general_iso(rng, b, channels=2):
+    blocks = [rng.normal(size=(channels, i.size, i.size)) for i in b.azimuthal_blocks().cos]
+    return CoefficientMatrix.from_blocks(b, blocks, "f", reciprocal=False)
+
+
+_GENERAL_BASES = [HemiZernike(8), HemiHarmonics(7), HemiHarmonics(6, parity="even"),
+                  SphericalHarmonics(6)]
+
+
+@pytest.mark.parametrize("b", _GENERAL_BASES, ids=repr)
+@pytest.mark.parametrize("quantity", ["f", "f_cos"])
+def test_general_eval_matches_direct_product(rng, b, quantity):
+    # reference: b(w_i)^T M b(w_o) from basis.eval, no fused kernel, no symmetry assumed
+    cm = _general_iso(rng, b)
+    cm = CoefficientMatrix.from_blocks(b, cm.blocks, quantity, reciprocal=False)
+    wi, wo = _unit_upper(rng, 500), _unit_upper(rng, 500)
+    wi[:, 2] += 0.05
+    wo[:, 2] += 0.05  # keep away from the min_cos lift of f_cos
+    wi /= np.linalg.norm(wi, axis=1, keepdims=True)
+    wo /= np.linalg.norm(wo, axis=1, keepdims=True)
+    m = cm.matrix
+    ref = np.einsum("nj,cjk,nk->nc", b.eval(wi), m, b.eval(wo))
+    if quantity == "f_cos":
+        ref /= (wi[:, 2] * wo[:, 2])[:, None]
+    dense = CoefficientMatrix(b, m, quantity, isotropic=False, reciprocal=False)
+    assert cm.is_isotropic and not dense.is_isotropic
+    scale = np.max(np.abs(ref))
+    # the fused kernel's Chebyshev change of basis: ~1e-14 relative (module notes); dense
+    # products: rounding of ~size terms
+    np.testing.assert_allclose(cm.eval(wi, wo), ref, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(dense.eval(wi, wo), ref, rtol=0, atol=1e-12 * scale)
+    # the antisymmetric part is really there: f(w_i, w_o) != f(w_o, w_i)
+    assert np.max(np.abs(cm.eval(wi, wo) - cm.eval(wo, wi))) > 1e-3 * scale
+
+
+@pytest.mark.parametrize("dense", [False, True])
+def test_transpose_and_parts(rng, dense):
+    b = HemiZernike(6)
+    cm = _general_iso(rng, b)
+    if dense:
+        cm = CoefficientMatrix(b, cm.matrix, "f", isotropic=False, reciprocal=False)
+    wi, wo = _unit_upper(rng, 300), _unit_upper(rng, 300)
+    t = cm.transpose()
+    assert not t.reciprocal and t.is_isotropic == cm.is_isotropic
+    np.testing.assert_array_equal(t.matrix, np.swapaxes(cm.matrix, -1, -2))
+    # f^T(w_i, w_o) = f(w_o, w_i); both evaluations round alike: 1e-12 relative
+    scale = np.max(np.abs(cm.eval(wi, wo)))
+    np.testing.assert_allclose(t.eval(wi, wo), cm.eval(wo, wi), rtol=0, atol=1e-12 * scale)
+    s, a = cm.symmetric_part(), cm.antisymmetric_part()
+    assert s.reciprocal and not a.reciprocal
+    np.testing.assert_allclose(s.matrix + a.matrix, cm.matrix, rtol=0, atol=1e-15 * 8)
+    np.testing.assert_array_equal(s.matrix, np.swapaxes(s.matrix, -1, -2))
+    # a reciprocal matrix is its own transpose and symmetric part
+    assert s.transpose() is s and s.symmetric_part() is s
+
+
+def test_general_albedo_integrates_over_the_outgoing_direction(rng):
+    # a(w_i) = int f(w_i, w_o) cos(theta_o) dw_o by a hemisphere rule: f is a polynomial of
+    # degree <= 4 in w_o (HemiZernike(4)), times z_o: degree 5, exact with 6 x 12 nodes
+    b = HemiZernike(4)
+    cm = _general_iso(rng, b)
+    rule = hemisphere_rule(6, 12)
+    wi = _unit_upper(rng, 7)
+    f = cm.eval(wi[:, None, :], rule.points[None, :, :])  # (7, nodes, channels)
+    ref = np.einsum("inc,n->ic", f, rule.weights * rule.points[:, 2])
+    np.testing.assert_allclose(cm.albedo(wi), ref, rtol=0, atol=1e-13)
+    # the other direction (light from w_o) is the transpose's albedo, and differs here
+    f_t = cm.eval(rule.points[None, :, :], wi[:, None, :])
+    ref_t = np.einsum("inc,n->ic", f_t, rule.weights * rule.points[:, 2])
+    np.testing.assert_allclose(cm.transpose().albedo(wi), ref_t, rtol=0, atol=1e-13)
+    assert np.max(np.abs(ref - ref_t)) > 1e-3
+
+
+def test_general_derived_matrices_keep_the_form(rng):
+    b = HemiZernike(6)
+    cm = _general_iso(rng, b)
+    t = cm.truncate(3)
+    assert not t.reciprocal and t.basis == HemiZernike(3)
+    idx = np.arange(t.basis.size)  # a prefix of the functions
+    np.testing.assert_array_equal(t.matrix, cm.matrix[:, idx[:, None], idx])
+    # rotation: A^T M A with the exact action A; a general dense matrix stays general
+    d = CoefficientMatrix(b, rng.normal(size=(b.size, b.size)), "f", isotropic=False,
+                          reciprocal=False)
+    wi, wo = _unit_upper(rng, 200), _unit_upper(rng, 200)
+    ang = 0.7
+    rot = np.array([[np.cos(ang), -np.sin(ang), 0], [np.sin(ang), np.cos(ang), 0], [0, 0, 1]])
+    r = d.rotated(ang)
+    assert not r.reciprocal
+    # f'(w_i, w_o) = f(R^-1 w_i, R^-1 w_o); rounding of the dense products: 1e-12
+    np.testing.assert_allclose(r.eval(wi, wo), d.eval(wi @ rot, wo @ rot), rtol=0,
+                               atol=1e-12 * np.max(np.abs(d.matrix)))
+    assert cm.rotated(ang) is cm
+    # isotropic projection of a general dense matrix: blocks averaged, not symmetrised
+    iso = CoefficientMatrix(b, cm.matrix[0], "f", isotropic=False, reciprocal=False)
+    back = iso.to_isotropic()
+    assert back.is_isotropic and not back.reciprocal
+    np.testing.assert_array_equal(back.matrix, cm.matrix[0])
+    assert "reciprocal=False" in repr(cm) and "reciprocal" not in repr(cm.symmetric_part())
+
+
+def test_to_isotropic_drops_the_mirror_odd_blocks(rng):
+    # sin(dphi) coupling: b_c(w_i) b_s(w_o) - b_s(w_i) b_c(w_o) for the m = 1 pair of
+    # degree 1, an isotropic BRDF odd under the mirror y -> -y: no isotropic block holds it
+    b = HemiZernike(3)
+    c, s = b.azimuthal_blocks().cos[1][0], b.azimuthal_blocks().sin[1][0]
+    m = np.zeros((b.size, b.size))
+    m[0, 0] = 1.0
+    m[c, s], m[s, c] = 0.4, -0.4
+    cm = CoefficientMatrix(b, m, "f", reciprocal=False)
+    assert not cm.is_isotropic  # the cos-sin blocks are not block form
+    np.testing.assert_array_equal(cm.to_isotropic().matrix, np.where(m == 1.0, 1.0, 0.0))
+
+
+def test_general_errors(rng):
+    b = HemiZernike(2)
+    a = rng.normal(size=(b.size, b.size))
+    with pytest.raises(ValueError, match="matrix must be symmetric .* reciprocal=False"):
+        CoefficientMatrix(b, a)
+    with pytest.raises(ValueError, match="symmetrize must be False with reciprocal=False"):
+        CoefficientMatrix(b, a, symmetrize=True, reciprocal=False)
+    with pytest.raises(TypeError, match="reciprocal must be True or False, got 'no'"):
+        CoefficientMatrix(b, a, reciprocal="no")
+    with pytest.raises(TypeError, match="reciprocal must be True or False, got None"):
+        CoefficientMatrix.from_blocks(b, [np.eye(2), np.eye(1), np.eye(1)], reciprocal=None)
+    cm = CoefficientMatrix(b, a, reciprocal=False)
+    assert not cm.reciprocal
+    with pytest.raises(ValueError, match="to_modes needs a reciprocal matrix"):
+        cm.to_modes()
+    np.testing.assert_array_equal(CoefficientMatrix(b, a, reciprocal=False).matrix, a)

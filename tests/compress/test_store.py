@@ -73,7 +73,8 @@ def test_schema_layout(tmp_path, rng):
     with h5py.File(tmp_path / "s.h5", "r") as f:
         # text attributes are fixed-length UTF-8 (h5py reads them as bytes)
         assert f.attrs["format"] == FORMAT.encode()
-        assert f.attrs["schema_version"] == SCHEMA_VERSION == 3
+        assert f.attrs["schema_version"] == SCHEMA_VERSION == 4
+        assert f.attrs["reciprocal"]
         assert f.attrs["content"] == b"coefficients" and f.attrs["dtype"] == b"float64"
         assert f.attrs["basis_kind"] == b"zernike" and f.attrs["basis_order"] == 4
         assert f.attrs["storage"] == b"isotropic" and f.attrs["channels"] == 3
@@ -138,13 +139,13 @@ def test_foreign_hdf5(tmp_path):
         load(p)
 
 
-@pytest.mark.parametrize("version", [4, 0])
+@pytest.mark.parametrize("version", [5, 0])
 def test_unknown_version(tmp_path, rng, version):
     p = save(_iso(basis.HemiZernike(2), rng, 1), tmp_path / "v.h5")
     with h5py.File(p, "r+") as f:
         f.attrs["schema_version"] = version
     with pytest.raises(ValueError, match=rf"schema version {version}; .* reads schema "
-                                         r"versions 1, 2, 3: upgrade scatmodes"):
+                                         r"versions 1, 2, 3, 4: upgrade scatmodes"):
         load(p)
 
 
@@ -241,7 +242,7 @@ def test_schema_1_and_2_files_still_load(tmp_path, rng, version, b, channels):
             f.attrs["basis_kind"] = "hemi_sh"
     with pytest.raises(ValueError, match="sideways"):
         load(tmp_path / "old.h5")
-    assert READABLE_VERSIONS == (1, 2, 3)
+    assert READABLE_VERSIONS == (1, 2, 3, 4)
 
 
 @pytest.mark.parametrize("kind", basis.KINDS)
@@ -833,3 +834,62 @@ def test_file_open_for_writing_elsewhere(tmp_path, rng):
     with pytest.raises(BlockingIOError, match="a writer crashed: 'h5clear -s FILE' removes "
                                               "the mark"):
         load(path)
+
+
+# -- general (non-reciprocal) matrices: schema 4 ------------------------------------------------
+@pytest.mark.parametrize("storage", ["isotropic", "dense"])
+@pytest.mark.parametrize("dtype", ["float64", "float32"])
+def test_general_matrix_round_trips_bit_for_bit(tmp_path, rng, storage, dtype):
+    b = basis.HemiZernike(4)
+    if storage == "isotropic":
+        blocks = [rng.normal(size=(3, i.size, i.size)) for i in b.azimuthal_blocks().cos]
+        cm = CoefficientMatrix.from_blocks(b, blocks, "f", reciprocal=False)
+    else:
+        cm = CoefficientMatrix(b, rng.normal(size=(3, b.size, b.size)), "f", isotropic=False,
+                               reciprocal=False)
+    cm = CoefficientMatrix(b, cm.matrix.astype(dtype).astype(np.float64), "f",
+                           isotropic=storage == "isotropic", reciprocal=False)
+    p = save(cm, tmp_path / "g.h5", dtype=dtype)
+    with h5py.File(p, "r") as f:
+        assert not f.attrs["reciprocal"]
+        # whole blocks, k_m^2 numbers: k_m = 3, 2, 2, 1, 1 (dense: 15^2)
+        if storage == "isotropic":
+            assert f["blocks/m0"].shape == (3, 9) and f["blocks/m1"].shape == (3, 4)
+        else:
+            assert f["matrix"].shape == (3, b.size**2)
+    back = load(p)
+    assert not back.reciprocal and back.is_isotropic == (storage == "isotropic")
+    # values representable in the dtype: exact round trip
+    assert np.array_equal(back.matrix, cm.matrix)
+
+
+def test_general_hybrid_residual_round_trips(tmp_path, rng):
+    b = basis.HemiZernike(3)
+    blocks = [rng.normal(size=(3, i.size, i.size)) for i in b.azimuthal_blocks().cos]
+    res = CoefficientMatrix.from_blocks(b, blocks, "f", reciprocal=False)
+    back = load(save(Hybrid(_ggx(), res), tmp_path / "h.h5"))
+    assert not back.residual.reciprocal
+    assert np.array_equal(back.residual.matrix, res.matrix)
+
+
+def test_schema_3_file_loads_as_reciprocal(tmp_path, rng):
+    # a schema-3 file is a schema-4 file without the reciprocal attribute
+    cm = _iso(basis.HemiZernike(3), rng, 3)
+    p = save(cm, tmp_path / "v3.h5")
+    with h5py.File(p, "r+") as f:
+        f.attrs["schema_version"] = 3
+        del f.attrs["reciprocal"]
+    back = load(p)
+    assert back.reciprocal and np.array_equal(back.matrix, cm.matrix)
+
+
+def test_schema_4_needs_the_reciprocal_flag(tmp_path, rng):
+    p = save(_iso(basis.HemiZernike(2), rng, 1), tmp_path / "r.h5")
+    with h5py.File(p, "r+") as f:
+        del f.attrs["reciprocal"]
+    with pytest.raises(ValueError, match="reciprocal"):
+        load(p)
+    with h5py.File(p, "r+") as f:
+        f.attrs["reciprocal"] = "yes"
+    with pytest.raises(ValueError, match="reciprocal must be a boolean"):
+        load(p)

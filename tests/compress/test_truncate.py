@@ -180,3 +180,80 @@ def test_precision_overflow():
     cm = CoefficientMatrix(basis.HemiZernike(0), [[1e5]])
     with pytest.raises(ValueError, match="cannot hold coefficients up to 100000"):
         precision(cm, "float16")
+
+
+# -- general (non-reciprocal) matrices --------------------------------------------------------
+def _general(rng, dense=False, channels=2):
+    from basis import HemiZernike
+
+    b = HemiZernike(6)
+    blocks = [rng.normal(size=(channels, i.size, i.size)) for i in b.azimuthal_blocks().cos]
+    cm = CoefficientMatrix.from_blocks(b, blocks, "f", reciprocal=False)
+    if dense:
+        cm = CoefficientMatrix(b, rng.normal(size=(channels, b.size, b.size)), "f",
+                               isotropic=False, reciprocal=False)
+    return cm
+
+
+@pytest.mark.parametrize("dense", [False, True])
+def test_general_truncate_smooth_precision(rng, dense):
+    cm = _general(rng, dense)
+    m = cm.matrix
+    t = truncate(cm, 4)
+    k = t.basis.size
+    assert not t.reciprocal
+    np.testing.assert_array_equal(t.matrix, m[:, :k, :k])
+    # dropped part by Parseval, computed densely: rounding ~1e-15
+    want = np.max(np.sqrt(1 - np.sum(m[:, :k, :k] ** 2, axis=(1, 2))
+                          / np.sum(m**2, axis=(1, 2))))
+    assert t.info["truncation_change"] == pytest.approx(want, rel=1e-12)
+    s = smooth(cm, "hann")
+    w = smoothing_factors("hann", cm.order)[cm.basis.degree]
+    assert not s.reciprocal
+    np.testing.assert_allclose(s.matrix, m * w[:, None] * w[None, :], rtol=0, atol=1e-15 * 8)
+    p = precision(cm, "float32")
+    assert not p.reciprocal
+    np.testing.assert_array_equal(p.matrix, m.astype(np.float32).astype(np.float64))
+    # a general block of side k holds k^2 numbers
+    sides = [x.shape[-1] for x in cm.stored]
+    assert unique_coefficients(cm) == 2 * sum(n * n for n in sides)
+    assert p.info["precision"]["bytes"] == 4 * unique_coefficients(cm)
+    assert unique_coefficients(cm.symmetric_part()) == 2 * sum(n * (n + 1) // 2 for n in sides)
+
+
+def test_general_lowrank_dense_is_the_truncated_svd(rng):
+    # Eckart-Young: the best rank-r approximation is the truncated SVD (numpy reference)
+    cm = _general(rng, dense=True, channels=1)
+    m = cm.matrix[0]
+    u, s, vt = np.linalg.svd(m)
+    for r in (1, 5, 20):
+        lr = lowrank(cm, r)
+        ref = (u[:, :r] * s[:r]) @ vt[:r]
+        assert not lr.reciprocal
+        np.testing.assert_allclose(lr.matrix[0], ref, rtol=0, atol=1e-12 * s[0])
+        info = lr.info["lowrank"]
+        assert info["error"] == pytest.approx(np.sqrt(np.sum(s[r:] ** 2) / np.sum(s**2)),
+                                              rel=1e-10)
+        np.testing.assert_allclose(info["singular_values"][0], s[:r], rtol=1e-12)
+        assert info["numbers"] == r * (1 + 2 * cm.basis.size)
+
+
+def test_general_lowrank_isotropic_competes_across_blocks(rng):
+    # reference: every block's singular values, a block m > 0 weighted twice (cos and sin
+    # copies), the r largest kept; error = sqrt(dropped weighted s^2 / total)
+    cm = _general(rng, channels=1)
+    blocks = [b[0] for b in cm.stored]
+    terms = sorted(((1 if m == 0 else 2) * x * x, m) for m, b in enumerate(blocks)
+                   for x in np.linalg.svd(b, compute_uv=False))[::-1]
+    total = sum(t for t, _ in terms)
+    for r in (1, 4, 9):
+        lr = lowrank(cm, r)
+        dropped = sum(t for t, _ in terms[r:])
+        assert lr.is_isotropic and not lr.reciprocal
+        assert lr.info["lowrank"]["error"] == pytest.approx(np.sqrt(dropped / total), rel=1e-10)
+        # the kept terms of each block are its truncated SVD
+        for m, b in enumerate(blocks):
+            n = sum(1 for _, mm in terms[:r] if mm == m)
+            u, s, vt = np.linalg.svd(b)
+            np.testing.assert_allclose(lr.blocks[m][0], (u[:, :n] * s[:n]) @ vt[:n], rtol=0,
+                                       atol=1e-12 * s[0])

@@ -78,9 +78,10 @@ def test_polynomial_brdf_matches_dense_rule(basis, quantity, aniso):
     assert cm.info["method"] == "quadrature"
 
 
-def test_non_reciprocal_brdf_is_symmetrised():
+def test_non_reciprocal_brdf_is_symmetrised_on_request():
     brdf = Poly(0.3, reciprocal=False)
-    cm = project(brdf, HemiZernike(4), quantity="f_cos")
+    cm = project(brdf, HemiZernike(4), quantity="f_cos", reciprocal=True)
+    assert cm.reciprocal and cm.info["reciprocal"]
     ref = dense(brdf, HemiZernike(4), "f_cos", 10)[0]
     # the reciprocal part is the orthogonal projection (M + M^T)/2; rounding as above
     np.testing.assert_allclose(cm.matrix, 0.5 * (ref + ref.T), rtol=0, atol=1e-13)
@@ -482,3 +483,119 @@ def test_default_keeps_mirror_terms_in_f_cos():
     brdf = models.GlossyPaint(0.5, 0.05)
     assert default_quantity(HemiZernike(4), brdf) == "f_cos"
     assert project(brdf, HemiZernike(4)).quantity == "f_cos"
+
+
+# -- general (non-reciprocal) projection ------------------------------------------------------
+@pytest.mark.parametrize("aniso", [0.0, 0.3])
+def test_non_reciprocal_brdf_gets_the_general_matrix(aniso):
+    # reference: the dense product rule, not symmetrised; both exact for the polynomial
+    brdf = Poly(aniso, reciprocal=False)
+    b = HemiZernike(4)
+    cm = project(brdf, b, quantity="f_cos")  # reciprocal=None follows brdf.reciprocal
+    ref = dense(brdf, b, "f_cos", 10)[0]
+    assert not cm.reciprocal and cm.is_isotropic == (aniso == 0)
+    # rounding of sums of ~1e3 terms: 1e-13 relative to max |M| (~1)
+    np.testing.assert_allclose(cm.matrix, ref, rtol=0, atol=1e-13)
+    assert np.max(np.abs(ref - ref.T)) > 1e-3
+    forced = project(Poly(aniso), b, quantity="f_cos", reciprocal=False)
+    # a reciprocal BRDF in the general form: symmetric to rounding
+    assert not forced.reciprocal
+    np.testing.assert_allclose(forced.matrix, forced.matrix.T, rtol=0, atol=1e-13)
+
+
+class Products(BRDF):
+    """q = f cos(theta_i) cos(theta_o) = b(w_i)^T M0 b(w_o) for a general isotropic M0 in
+    the odd HemiHarmonics(5) (which vanish on the horizon like cos theta, so f is finite),
+    evaluated from ``basis.eval`` (not from the fused evaluator): the exact expansion of q
+    is M0."""
+
+    isotropic, reciprocal = True, False
+
+    def __init__(self, seed=3):
+        rng = np.random.default_rng(seed)
+        self.basis = HemiHarmonics(5)
+        blocks = [rng.normal(size=(i.size, i.size)) * 0.3 ** np.arange(i.size)
+                  for i in self.basis.azimuthal_blocks().cos]
+        blocks[0][0, 0] = 4.0
+        from basis import CoefficientMatrix
+
+        self.m0 = CoefficientMatrix.from_blocks(self.basis, blocks, reciprocal=False).matrix
+
+    def _eval(self, wi, wo):
+        b = self.basis
+        q = np.einsum("nj,jk,nk->n", b.eval(wi), self.m0, b.eval(wo))
+        zz = wi[:, 2] * wo[:, 2]
+        return np.divide(q, zz, out=np.zeros_like(q), where=zz > 0)[:, None]
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of Products")  # the symmetric one: floor
+def test_general_projection_is_exact_and_the_symmetric_one_stops_at_the_floor():
+    from project import reciprocity
+
+    brdf = Products()
+    b = brdf.basis
+    gen = project(brdf, b, quantity="f_cos")
+    sym = project(brdf, b, quantity="f_cos", reciprocal=True)
+    # a polynomial of degree 5 per direction: the Gauss rules are exact; rounding 1e-13
+    np.testing.assert_allclose(gen.matrix, brdf.m0, rtol=0, atol=1e-13 * np.abs(brdf.m0).max())
+    np.testing.assert_allclose(sym.matrix, 0.5 * (brdf.m0 + brdf.m0.T), rtol=0,
+                               atol=1e-13 * np.abs(brdf.m0).max())
+    # Parseval: ||q - q_sym|| / ||q|| = ||(M0 - M0^T) / 2|| / ||M0|| (the subtraction in
+    # truncation_error resolves ~1e-8)
+    floor = np.linalg.norm(0.5 * (brdf.m0 - brdf.m0.T)) / np.linalg.norm(brdf.m0)
+    assert gen.info["truncation_error"] < 1e-6
+    assert sym.info["truncation_error"] == pytest.approx(floor, rel=1e-6)
+    assert gen.info["antisymmetric_part"] == pytest.approx(floor, rel=1e-10)
+    # the independent estimate of the floor from sampled pairs: within 3 standard errors
+    rec = reciprocity(brdf, n=2**15)
+    assert abs(sym.info["truncation_error"] - rec.floor) <= 3 * rec.floor_stderr + 1e-9
+
+
+class TwistedNonReciprocal(BRDF):
+    """(1 + 0.3 z_i + (z_i + z_o) (w_i x w_o)_z / 2) / pi: isotropic, neither reciprocal nor
+    mirror symmetric (the last term is odd under y -> -y and under swapping). Its even part
+    in dphi is (1 + 0.3 z_i) / pi."""
+
+    isotropic, reciprocal = True, False
+
+    def _eval(self, wi, wo):
+        cross = wi[:, 0] * wo[:, 1] - wi[:, 1] * wo[:, 0]
+        return ((1.0 + 0.3 * wi[:, 2] + 0.5 * (wi[:, 2] + wo[:, 2]) * cross) / np.pi)[:, None]
+
+
+class EvenPart(BRDF):
+    isotropic, reciprocal = True, False
+
+    def _eval(self, wi, wo):
+        return ((1.0 + 0.3 * wi[:, 2] + 0.0 * wo[:, 2]) / np.pi)[:, None]
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of TwistedNonReciprocal")  # the odd part
+def test_non_mirror_non_reciprocal_isotropic_projects_its_even_part():
+    # without the mirror the blocks need both signs of dphi: the odd part integrates to 0
+    # against every cos(m dphi) only over the whole turn. Reference: the dense rule on the
+    # even part (a polynomial: exact)
+    zb = HemiZernike(4)
+    cm = project(TwistedNonReciprocal(), zb, quantity="f")
+    ref = dense(EvenPart(), zb, "f", 10)[0]
+    assert not cm.reciprocal and np.max(np.abs(ref - ref.T)) > 1e-3
+    np.testing.assert_allclose(cm.matrix, ref, rtol=0, atol=1e-12)
+    sym = project(TwistedNonReciprocal(), zb, quantity="f", reciprocal=True)
+    np.testing.assert_allclose(sym.matrix, 0.5 * (ref + ref.T), rtol=0, atol=1e-12)
+
+
+def test_general_montecarlo_agrees_with_quadrature():
+    brdf = Poly(0.0, reciprocal=False)
+    b = HemiZernike(3)
+    mc = project(brdf, b, quantity="f", method="montecarlo", samples=2**12)
+    ref = project(brdf, b, quantity="f")
+    assert not mc.reciprocal
+    # 5 standard errors of the 8-scramble estimate (entrywise max)
+    assert np.max(np.abs(mc.matrix - ref.matrix)) <= 5 * mc.info["error_estimate"]
+
+
+def test_reciprocal_argument_errors():
+    with pytest.raises(TypeError, match="reciprocal must be None, True or False, got 1"):
+        project(Poly(0.0), HemiZernike(2), reciprocal=1)
+    with pytest.raises(NotImplementedError, match="method='lstsq' fits reciprocal"):
+        project(Poly(0.0), HemiZernike(2), method="lstsq", reciprocal=False)
