@@ -47,7 +47,8 @@ class Hybrid:
     isotropic : bool
         True when both parts are isotropic.
     reciprocal : bool
-        True: both parts are reciprocal (the residual by construction).
+        True when both parts are: a full-turn factored lobe or a general residual matrix
+        (``reciprocal=False``) hold non-reciprocal data.
 
     Examples
     --------
@@ -62,7 +63,6 @@ class Hybrid:
     True
     """
 
-    reciprocal = True
     delta: tuple = ()
 
     def __init__(self, lobe: Any, residual: CoefficientMatrix,
@@ -83,6 +83,7 @@ class Hybrid:
         self.residual = residual
         self.channels = max(lc, rc)
         self.isotropic = bool(lobe.isotropic) and residual.is_isotropic
+        self.reciprocal = bool(getattr(lobe, "reciprocal", True)) and residual.reciprocal
         self.info: dict[str, Any] = dict(info or {})
 
     @property

@@ -56,6 +56,7 @@ from basis import CoefficientMatrix
 from basis.validation import as_directions, choice, nonneg_int
 from project.crossval import sample_errors
 from project.measurements import FOLDS
+from project.reciprocity import MIN_PAIRS
 from project.sampling import peak_resolving_pairs, value_errors
 
 from .hybrid import Hybrid
@@ -84,6 +85,19 @@ DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
     *({"form": "hybrid", "family": "factored", "rank": r, "bins": b, "tol": _FACTORED_TOL,
        "kind": "zernike", "order": n} for r, b, n in ((4, (32, 24, 8), 4),
                                                        (6, (40, 24, 8), 6))),
+    # non-reciprocal forms, for data whose antisymmetric part the tolerance cannot absorb
+    # (competing only when select's reciprocity decision lets them): factored lobes whose
+    # phi_d factor covers the whole turn (16 nodes: the resolution of 8 over half a turn)
+    # and general matrices
+    *({"form": "model", "family": "factored", "rank": r, "bins": b, "tol": _FACTORED_TOL,
+       "phi_turn": "full"} for r, b in ((1, (32, 24, 16)), (2, (32, 24, 16)),
+                                        (3, (24, 16, 16)), (4, (32, 24, 16)),
+                                        (6, (40, 24, 16)), (8, (48, 32, 16)))),
+    {"form": "modal", "kind": "zernike", "order": 4, "reciprocal": False},
+    {"form": "modal", "kind": "zernike", "order": 8, "reciprocal": False},
+    {"form": "hybrid", "family": "factored", "rank": 4, "bins": (32, 24, 16),
+     "tol": _FACTORED_TOL, "phi_turn": "full", "kind": "zernike", "order": 4,
+     "reciprocal": False},
 )
 #: The default candidates for measurements: parametric models (the factored tables need a
 #: BRDF that can be evaluated anywhere), low orders of the Zernike basis fitted by least
@@ -109,9 +123,12 @@ SAMPLE_CANDIDATES: tuple[dict[str, Any], ...] = (
 )
 _FIT_KEYS = frozenset(project.fitting.FACTORED_OPTIONS) | {"restarts", "lobes", "n",
                                                              "max_nfev", "fit_metric"}
-_KEYS = {"modal": {"kind", "order", "rank"},
+_KEYS = {"modal": {"kind", "order", "rank", "reciprocal"},
          "model": {"family"} | _FIT_KEYS,
-         "hybrid": {"family", "kind", "order"} | _FIT_KEYS}
+         "hybrid": {"family", "kind", "order", "reciprocal"} | _FIT_KEYS}
+#: ``reciprocal`` of :func:`select`: decide from the data, reciprocal forms only, or
+#: non-reciprocal forms only.
+RECIPROCAL_CHOICES = (None, True, False)
 
 
 class NoCandidateError(ValueError):
@@ -142,7 +159,7 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
            scene: Mapping[str, Any] | None = None,
            dtypes: Iterable[str] = ("float16", "float32", "float64"),
            error_n: int = 1 << 16, seed: int | None = None, exhaustive: bool = False,
-           progress: bool = False, folds: int = FOLDS) -> Any:
+           progress: bool = False, folds: int = FOLDS, reciprocal: bool | None = None) -> Any:
     """Return the representation of ``brdf`` with the fewest bytes whose error is <= ``tol``.
 
     Parameters
@@ -192,6 +209,18 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
         Print one line per candidate built.
     folds : int
         Measurements only: folds of the cross-validation, >= 2.
+    reciprocal : {None, True, False}
+        Which forms compete (module notes). Reciprocity is measured first
+        (:func:`project.reciprocity`): the floor is the relative L2 norm of the data's
+        antisymmetric part, which no reciprocal form can go below. ``None`` decides from
+        it: reciprocal forms only when the floor is at most half the tolerance (two
+        standard errors spared; they are about half the size), non-reciprocal forms only
+        when the floor exceeds the tolerance, both otherwise. ``True``: reciprocal forms
+        only, and the errors are measured against the reciprocal part of the data,
+        (f(w_i, w_o) + f(w_o, w_i)) / 2 (the floor is reported, not counted). ``False``:
+        non-reciprocal forms only (a full-turn factored lobe, ``phi_turn="full"``; a
+        general matrix, ``"reciprocal": False`` in a modal or hybrid candidate).
+        ``info["reciprocity"]`` records the measurement and the decision.
 
     Returns
     -------
@@ -254,24 +283,49 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
               for c in (default if candidates is None else list(candidates))]
     if not builds:
         raise ValueError("candidates must hold at least one candidate")
+    if reciprocal not in RECIPROCAL_CHOICES:
+        raise ValueError(f"reciprocal must be None, True or False, got {reciprocal!r}")
     if sampled:
         if scene is not None:
             raise ValueError("scene= needs a BRDF that can be evaluated under any light; "
                              "measurements hold values at their samples only: select on "
                              "the samples, then judge the result in the scene")
+        if reciprocal is False:
+            raise ValueError("reciprocal=False: no non-reciprocal form can be fitted to "
+                             "samples yet (the parametric families and the least-squares "
+                             "expansion are reciprocal); pass None or True")
         judge = None
         measure = _SampleJudge(brdf, nonneg_int(folds, "folds"), 0 if seed is None else seed,
                                metric)
+        rec = project.reciprocity(brdf)
     else:
-        samples = peak_resolving_pairs(nonneg_int(error_n, "error_n"),
-                                       seed=2027 if seed is None else seed)
+        pair_seed = 2027 if seed is None else seed
+        samples = peak_resolving_pairs(nonneg_int(error_n, "error_n"), seed=pair_seed)
         f = np.asarray(brdf.eval(samples.wi, samples.wo), dtype=np.float64)
         if not np.all(np.isfinite(f)) or np.any(f < 0):
             raise ValueError(f"brdf must return finite values >= 0; {_short(brdf)} "
                              f"returns {int(np.sum(~np.isfinite(f)))} non-finite and "
                              f"{int(np.sum(f < 0))} negative values at the error pairs")
+        rec = project.reciprocity(brdf, n=max(error_n, MIN_PAIRS),
+                                  seed=pair_seed)
+        if reciprocal is True:  # judged against the reciprocal part of the data
+            f = 0.5 * (f + np.asarray(brdf.eval(samples.wo, samples.wi), dtype=np.float64))
         judge = _scene_judge(brdf, scene) if scene is not None else None
         measure = _PairJudge(brdf, samples, f, metric)
+    allowed, why = _reciprocal_forms(rec, tol, reciprocal, sampled)
+    recorded = {"residual": rec.residual, "floor": rec.floor, "floor_stderr": rec.floor_stderr,
+                "choice": reciprocal, "forms": sorted("reciprocal" if a else "non-reciprocal"
+                                                      for a in allowed), "why": why}
+    for b in builds:
+        if _is_reciprocal(b.spec) not in allowed:
+            kind = "a reciprocal" if _is_reciprocal(b.spec) else "a non-reciprocal"
+            b.rows = [_row(b, d, status=f"skipped: {kind} form ({why})") for d in b.dtypes]
+    excluded = [b for b in builds if b.rows]
+    builds = [b for b in builds if not b.rows]
+    if not builds:
+        raise ValueError(f"no candidate of the forms allowed ({why}): add "
+                         + ("non-reciprocal candidates (phi_turn='full', 'reciprocal': False)"
+                            if False in allowed else "reciprocal candidates"))
 
     # unknown sizes first (cheap parametric fits), then by the smallest size possible
     def order(b: _Build) -> tuple[int, int]:
@@ -315,7 +369,7 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
             summary = ", ".join(f"{r['dtype']} {r['bytes']} B {r['error']:.4g}"
                                 for r in measured) or b.rows[-1]["status"]
             print(f"select: {b.label} ({seconds:.1f} s): {summary}", flush=True)
-    table = [row for b in builds for row in b.rows]
+    table = [row for b in (*builds, *excluded) for row in b.rows]
     table.sort(key=lambda r: (r["bytes"] is None, r["bytes"] or 0, r["label"]))
     how = measure.description
     if best is None:
@@ -327,12 +381,42 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
             + (f": the smallest error is {closest['error']:.4g}, {closest['label']} at "
                f"{closest['bytes']} bytes ({closest['dtype']})" if closest else
                ": every candidate failed (see .candidates)")
-            + f" (errors {how}); add larger candidates or raise the tolerance", table)
+            + f" (errors {how}; {why}); add larger candidates or raise the tolerance", table)
     nbytes, _, rep, row = best
     rep.info = {**rep.info, "selected": row, "bytes": nbytes, "dtype": row["dtype"],
                 "candidates": table, "tol": tol, "metric": "scene" if judge else metric,
-                "errors": how}
+                "errors": how, "reciprocity": recorded}
     return rep
+
+
+# -- reciprocity --------------------------------------------------------------------------------
+
+def _is_reciprocal(spec: Mapping[str, Any]) -> bool:
+    """Whether a candidate's form is reciprocal by construction."""
+    lobe = not (spec.get("family") == "factored" and spec.get("phi_turn", "half") == "full")
+    if spec["form"] == "model":
+        return lobe
+    residual = bool(spec.get("reciprocal", True))
+    return residual if spec["form"] == "modal" else lobe and residual
+
+
+def _reciprocal_forms(rec: Any, tol: float, choice_: bool | None,
+                      sampled: bool) -> tuple[set[bool], str]:
+    """Return the forms allowed (True: reciprocal, False: not) and why, from the floor."""
+    floor, se = rec.floor, rec.floor_stderr
+    measured = f"reciprocity floor {floor:.3g} +- {se:.2g}" if math.isfinite(floor) else \
+        "reciprocity not measured: " + (rec.note or "no estimate")
+    if choice_ is True:
+        return {True}, f"reciprocal forms asked for; errors against the reciprocal part, {measured}"
+    if choice_ is False:
+        return {False}, f"non-reciprocal forms asked for; {measured}"
+    if sampled:  # only reciprocal forms can be fitted to samples
+        return {True}, f"{measured}; the forms fitted to samples are reciprocal"
+    if not math.isfinite(floor) or floor + 2.0 * se <= 0.5 * tol:
+        return {True}, f"{measured} <= tol / 2: reciprocal forms, about half the size"
+    if floor - 2.0 * se >= tol:
+        return {False}, f"{measured} >= tol: no reciprocal form can meet it"
+    return {True, False}, f"{measured} between tol / 2 and tol: both forms"
 
 
 # -- measuring candidates -------------------------------------------------------------------------
@@ -451,6 +535,9 @@ def _build_spec(c: Mapping[str, Any], channels: int, dtypes: tuple[str, ...]) ->
         choice(spec["family"], "candidate family", project.fitting.FAMILIES)
     if "fit_metric" in spec:
         choice(spec["fit_metric"], "candidate fit_metric", METRICS)
+    if not isinstance(spec.get("reciprocal", True), bool):
+        raise TypeError(f"candidate reciprocal must be True or False, got "
+                        f"{spec['reciprocal']!r}")
     reals = _reals(spec, channels)
     label = form + ": " + ", ".join(f"{k}={v}" for k, v in spec.items() if k != "form")
     return _Build(spec, label, reals, own)
@@ -466,13 +553,16 @@ def _reals(spec: dict[str, Any], channels: int) -> int | None:
         total += lobe
     if spec["form"] in ("modal", "hybrid"):
         sizes = basis.make_basis(spec["kind"], spec["order"]).azimuthal_blocks().sizes
+        general = not spec.get("reciprocal", True)
         if spec["form"] == "modal" and spec.get("rank") is not None:
-            # an eigen-term stores its eigenvalue and its vector (of its block m); the
-            # largest blocks bound it, so this is an upper bound until measured
+            # an eigen-term stores its eigenvalue and its vector (of its block m), a singular
+            # term of a general block its value and two vectors; the largest blocks bound
+            # it, so this is an upper bound until measured
             rank = nonneg_int(spec["rank"], "candidate rank")
-            total += channels * rank * (1 + int(sizes.max()))
+            total += channels * rank * (1 + (2 if general else 1) * int(sizes.max()))
         else:
-            total += channels * int(np.sum(sizes * (sizes + 1) // 2))
+            per = sizes * sizes if general else sizes * (sizes + 1) // 2
+            total += channels * int(np.sum(per))
     return total
 
 
@@ -529,6 +619,9 @@ def _nodes(order: int) -> tuple[int, int]:
 def _make(spec: dict[str, Any], brdf: Any, fits: dict[tuple, Any], metric: str) -> Any:
     form = spec["form"]
     sampled = isinstance(brdf, project.Measurements)
+    if sampled and not _is_reciprocal(spec):
+        raise ValueError("a non-reciprocal form cannot be fitted to samples yet (the "
+                         "factored tables need a BRDF, the least-squares fit is reciprocal)")
     if form == "model":
         return _lobe(spec, brdf, fits)
     if form == "hybrid":
@@ -537,7 +630,8 @@ def _make(spec: dict[str, Any], brdf: Any, fits: dict[tuple, Any], metric: str) 
                                kind=spec["kind"], folds=0)
         return make_hybrid(brdf, spec["order"], lobe=_lobe(spec, brdf, fits),
                            kind=spec["kind"], error_samples=0,
-                           nodes=_nodes(spec["order"]))
+                           nodes=_nodes(spec["order"]),
+                           reciprocal=spec.get("reciprocal", True))
     b = basis.make_basis(spec["kind"], spec["order"])
     if sampled:
         cm = project.fit(brdf, b, quantity="f_cos" if metric == "l2" else "f",

@@ -13,7 +13,8 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ["basis", "project", "project.microgeometry", "compress", "compress.cli"]
+PACKAGES = ["basis", "project", "project.fitting", "project.microgeometry", "compress",
+            "compress.cli"]
 
 
 @pytest.fixture(scope="module")

@@ -267,3 +267,58 @@ def test_fit_metric_candidates_and_the_message_of_no_candidate():
     text = str(err.value)
     assert "Measurements(" in text and "...: the smallest error" in text or \
         "isotropic=True): the smallest error" in text
+
+
+class _Tilted:
+    """f = kd (1 + c cos theta_i) / pi: not reciprocal. Its antisymmetric part in q has the
+    squared norm kd^2 c^2 / (120 pi^2) (2 pi)^2 against ||q||^2 = kd^2 (4/3)(1/3 + c/2 +
+    c^2/5) (2 pi)^2 / pi^2 over H x H, so the floor is 0.0497 at c = 0.5 (closed form)."""
+
+    isotropic, reciprocal, channels = True, False, 1
+
+    def __init__(self, kd=0.5, c=0.5):
+        self.kd, self.c = kd, c
+
+    def eval(self, wi, wo):
+        wi, wo = np.asarray(wi, float), np.asarray(wo, float)
+        up = (wi[..., 2] >= 0) & (wo[..., 2] >= 0)
+        return np.where(up, self.kd * (1.0 + self.c * wi[..., 2]) / np.pi, 0.0)
+
+
+NONREC = [{"form": "modal", "kind": "zernike", "order": 4},
+          {"form": "modal", "kind": "zernike", "order": 4, "reciprocal": False}]
+
+
+def test_reciprocity_decides_the_forms():
+    """Measured floor 0.0497 (closed form, above): at tol 0.03 no reciprocal form can meet
+    it, so select keeps the general matrix; asked for reciprocal forms, the symmetric
+    matrix meets the tolerance against the reciprocal part of the data and the floor is
+    reported; for a reciprocal BRDF the general matrix is not even considered."""
+    tilted = _Tilted()
+    rep = select(tilted, 0.03, candidates=NONREC, dtypes=("float64",), **FAST)
+    rec = rep.info["reciprocity"]
+    assert abs(rec["floor"] - 0.0497) < 3 * rec["floor_stderr"] + 1e-3
+    assert rec["forms"] == ["non-reciprocal"] and "no reciprocal form can meet it" in rec["why"]
+    assert isinstance(rep, basis.CoefficientMatrix) and not rep.reciprocal
+    assert rep.info["selected"]["l2"] < 0.03
+    skipped = next(r for r in rep.info["candidates"] if r["candidate"].get("reciprocal", True))
+    assert skipped["status"].startswith("skipped: a reciprocal form")
+
+    sym = select(tilted, 0.03, candidates=NONREC, dtypes=("float64",), reciprocal=True, **FAST)
+    assert sym.reciprocal and sym.info["selected"]["l2"] < 0.03
+    assert "against the reciprocal part" in sym.info["reciprocity"]["why"]
+
+    lam = select(Lambert(0.5), 0.03, candidates=NONREC, dtypes=("float64",), **FAST)
+    assert lam.reciprocal and lam.info["reciprocity"]["floor"] < 1e-12
+    assert lam.info["reciprocity"]["forms"] == ["reciprocal"]
+
+
+def test_reciprocal_choice_errors():
+    with pytest.raises(ValueError, match="reciprocal must be None, True or False"):
+        select(Lambert(0.5), 0.1, reciprocal="yes", **FAST)
+    with pytest.raises(ValueError, match="no candidate of the forms allowed"):
+        select(Lambert(0.5), 0.1, reciprocal=False, candidates=NONREC[:1], **FAST)
+    with pytest.raises(ValueError, match="reciprocal=False: no non-reciprocal form"):
+        select(gonio_samples(GGX), 0.1, reciprocal=False)
+    with pytest.raises(TypeError, match="candidate reciprocal must be True or False"):
+        select(Lambert(0.5), 0.1, candidates=[{**NONREC[0], "reciprocal": 0}], **FAST)

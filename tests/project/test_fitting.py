@@ -443,7 +443,7 @@ def test_rr8807_shadowing_is_smith_for_its_distribution():
     here too), so the implementation integrates over the whole line."""
     from scipy.special import erfc, gammaln
 
-    from project.fitting import _epd_lambda
+    from project.fitting.rr8807 import _epd_lambda
 
     m = np.array([0.05, 0.3, 1.0, 2.0, 3.5])
     beck = 0.5 * (np.exp(-m * m) / (m * np.sqrt(np.pi)) - erfc(m))

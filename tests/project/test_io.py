@@ -126,11 +126,17 @@ def test_killed_writer_leaves_no_temporary(tmp_path, sig):
     target.write_text("old")
     flag = tmp_path / "started"
     root = Path(__file__).resolve().parents[2]
+    # a shell that starts the suite in the background hands its children SIGINT ignored;
+    # the child restores the default, as a program started in a terminal has it
     with subprocess.Popen([sys.executable, "-c", _WRITER, str(target), str(flag)], cwd=root,
-                          stderr=subprocess.PIPE) as proc:
+                          stderr=subprocess.PIPE,
+                          preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL)) \
+            as proc:
         try:
             deadline = time.time() + 60
-            while not flag.exists() and proc.poll() is None and time.time() < deadline:
+            # the flag is complete once it holds the temporary's name (not merely exists)
+            while not (flag.exists() and flag.read_text()) and proc.poll() is None \
+                    and time.time() < deadline:
                 time.sleep(0.02)
             assert flag.exists(), proc.stderr.read() if proc.poll() is not None else "timeout"
             tmp = Path(flag.read_text())

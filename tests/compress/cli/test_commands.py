@@ -529,6 +529,12 @@ sys.exit(main(sys.argv[2:]))
 """
 
 
+def _default_sigint() -> None:
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("sig, code, word", [(15, 143, "terminated (SIGTERM)"),
                                              (2, 130, "interrupted")], ids=["TERM", "INT"])
 def test_simulate_signal_saves_a_final_checkpoint(tmp_path, sig, code, word):
@@ -540,7 +546,10 @@ def test_simulate_signal_saves_a_final_checkpoint(tmp_path, sig, code, word):
     argv = [*SIM, "--rays", "1e9", "--checkpoint", str(ckpt), "--checkpoint-interval", "3600",
             "-o", str(tmp_path / "x.h5")]
     root = Path(__file__).resolve().parents[3]
+    # a shell that starts the suite in the background hands its children SIGINT ignored;
+    # the child restores the default, as a program started in a terminal has it
     with subprocess.Popen([sys.executable, "-c", _CLI_RUN, str(flag), *argv], cwd=root,
+                          preexec_fn=_default_sigint,
                           stderr=subprocess.PIPE, text=True) as proc:
         try:
             deadline = time.time() + 120
