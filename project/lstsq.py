@@ -376,6 +376,10 @@ def fit(
         * ``lambert_validation_error``: the same error, on the same folds, of the best
           Lambertian fit (one constant f per channel), the simplest compact model (None
           when the weight was given);
+        * ``validation_l2`` and ``lambert_validation_l2``: the held-out errors of the fit
+          and of the Lambertian fit in the metric of every fit to samples
+          (:mod:`project.crossval`): the relative L2 error of q = f cos(theta_i)
+          cos(theta_o), the worst channel (None without folds: GCV, or a given weight);
         * ``residual_rms`` (list, one per channel): sqrt(sum w r^2 / sum w) of the residual r
           in the fitted quantity.
 
@@ -396,7 +400,8 @@ def fit(
     RuntimeWarning
         When the fit is unregularised (lambda = 0, given or chosen) and the design matrix is
         rank-deficient (the minimum-norm solution is returned) or its condition number
-        exceeds :data:`COND_WARN` = 1e12. When the cross-validated error is >= 1 (the fit
+        exceeds :data:`COND_WARN` = 1e12. When a cross-validated error (``validation_l2``
+        or ``validation_error``) is >= 1 (the fit
         predicts held-out samples no better than zero) or above that of a Lambertian fit
         (by more than :data:`ZERO_MARGIN` and :data:`LAMBERT_MARGIN`):
         an expansion cannot follow a narrow measured highlight between a gonioreflectometer's
@@ -538,15 +543,18 @@ def fit(
     yw = y * sw[:, None]
     scale = 1.0 / np.sqrt(_degree_penalty(basis, lay)) if pen == "degree" else None
 
-    validation = lambert = None
+    validation = lambert = validation_q = lambert_q = None
     method_text = "given"
     if how != "given" and samples and unknowns:
         folds, method_text = _folds(wi, wo, isotropic, how)
-        sel = _select(a, yw, scale, folds, how)
-        lam, validation = sel.weight, sel.error
+        # the weighted residual of the fitted quantity times qw is that of q = f cos cos
+        cc = wi[:, 2] * wo[:, 2]
+        qw = np.ones(samples) if quantity == "f_cos" else cc
+        sel = _select(a, yw, scale, folds, how, qw)
+        lam, validation, validation_q = sel.weight, sel.error, sel.error_q
         std = sel.svd
-        lambert = _lambert_error(sw * (wi[:, 2] * wo[:, 2] if quantity == "f_cos" else 1.0),
-                                 yw, folds)
+        lambert, lambert_q = _lambert_error(sw * (cc if quantity == "f_cos" else 1.0), yw,
+                                            folds, qw)
     elif lam > 0.0 and pen == "degree" and samples and unknowns:
         std = _Svd.of(a * scale, yw)
     else:
@@ -578,12 +586,18 @@ def fit(
                       f"({unknowns} unknowns, {samples} samples); rounding alone may cost "
                       f"{cond * np.finfo(float).eps:.1e} relative error: lower the order or "
                       "pass regularization='auto' or > 0", RuntimeWarning, stacklevel=2)
-    if validation is not None and (validation >= 1.0 or validation > max(
-            (1.0 + ZERO_MARGIN) * lambert, lambert + LAMBERT_MARGIN)):
-        than = ("no better than zero" if validation >= 1.0 else
-                f"worse than a Lambertian fit ({lambert:.3g})")
+    # judged in the fitted quantity and, where there are folds, in the l2 error of q (worst
+    # channel), the metric of every fit to samples (project.crossval): either one warns
+    flagged = [(j, b, m) for j, b, m in ((validation_q, lambert_q, "l2 of q"),
+                                         (validation, lambert, "relative RMS"))
+               if j is not None and (j >= 1.0 or j > max((1.0 + ZERO_MARGIN) * b,
+                                                          b + LAMBERT_MARGIN))]
+    judged, baseline, metric = flagged[0] if flagged else (None, None, None)
+    if judged is not None:
+        than = ("no better than zero" if judged >= 1.0 else
+                f"worse than a Lambertian fit ({baseline:.3g})")
         warnings.warn(f"fit predicts held-out samples {than}: cross-validated error "
-                      f"{validation:.3g} ({kind} {basis!r}, {samples} samples, "
+                      f"{judged:.3g} ({metric}; {kind} {basis!r}, {samples} samples, "
                       f"{method_text}). An expansion cannot follow these data between the "
                       "measured directions (a narrow highlight?); fit a compact model, "
                       "project.fit_model(measurements, 'lambert+ggx'), or let "
@@ -604,6 +618,8 @@ def fit(
         "effective_parameters": eff,
         "validation_error": validation,
         "lambert_validation_error": lambert,
+        "validation_l2": validation_q,
+        "lambert_validation_l2": lambert_q,
         "isotropic": isotropic,
         "quantity": quantity,
         "basis": repr(basis),
@@ -721,6 +737,7 @@ class _Selection:
     weights: NDArray  # the candidates
     errors: NDArray  # their validation errors (relative RMS)
     fold_sse: NDArray | None  # (folds, candidates) squared errors
+    error_q: float | None = None  # held-out l2 error of q at the chosen weight, worst channel
 
 
 def _degree_penalty(basis: Basis, lay: Unknowns) -> NDArray[np.float64]:
@@ -758,8 +775,12 @@ def _group_folds(group: NDArray, count: int) -> NDArray[np.int64]:
 
 
 def _select(a: NDArray, y: NDArray, scale: NDArray | None, folds: NDArray,
-            how: str) -> _Selection:
-    """Choose the Tikhonov weight among 0 and t s_max^2 by the validation of ``how``."""
+            how: str, qw: NDArray | None = None) -> _Selection:
+    """Choose the Tikhonov weight among 0 and t s_max^2 by the validation of ``how``.
+
+    ``qw`` (n,) turns a weighted residual of the fitted quantity into one of q: the
+    held-out l2 error of q at the chosen weight is then reported too (with folds only).
+    """
     ap = a if scale is None else a * scale
     full = _Svd.of(ap, y)
     n, u = ap.shape
@@ -785,6 +806,7 @@ def _select(a: NDArray, y: NDArray, scale: NDArray | None, folds: NDArray,
         return _Selection(float(lams[pick]), float(err[pick]), full, lams, err, None)
     nf = int(folds.max()) + 1
     sse = np.zeros((nf, lams.size))
+    sse_q = np.zeros((lams.size, y.shape[1]))
     for f in range(nf):
         test = folds == f
         part = _Svd.of(ap[~test], y[~test])
@@ -794,6 +816,8 @@ def _select(a: NDArray, y: NDArray, scale: NDArray | None, folds: NDArray,
         proj = ap[test] @ part.vt.T  # (m, r)
         pred = np.einsum("mr,lr,rc->lmc", proj, filt, part.uty, optimize=True)
         sse[f] = np.sum((pred - y[test][None]) ** 2, axis=(1, 2))
+        if qw is not None:
+            sse_q += np.sum(((pred - y[test][None]) * qw[test][None, :, None]) ** 2, axis=1)
     err = np.sqrt(sse.sum(axis=0) / total) if total > 0 else np.zeros(lams.size)
     best = int(np.argmin(err[1:])) + 1 if lams.size > 1 else 0
     pick = best
@@ -809,31 +833,43 @@ def _select(a: NDArray, y: NDArray, scale: NDArray | None, folds: NDArray,
         pick = best if clear else 0
     else:
         err[0] = np.inf
-    return _Selection(float(lams[pick]), float(err[pick]), full, lams, err, sse)
+    error_q = None
+    if qw is not None:
+        total_q = np.sum((y * qw[:, None]) ** 2, axis=0)
+        error_q = float(np.max(np.sqrt(np.divide(sse_q[pick], total_q, out=np.zeros_like(
+            total_q), where=total_q > 0))))
+    return _Selection(float(lams[pick]), float(err[pick]), full, lams, err, sse, error_q)
 
 
-def _lambert_error(x: NDArray, y: NDArray, folds: NDArray) -> float:
-    """Cross-validated error of the best one-constant-per-channel fit y ~ c x (weighted).
+def _lambert_error(x: NDArray, y: NDArray, folds: NDArray,
+                   qw: NDArray) -> tuple[float, float | None]:
+    """Cross-validated errors of the best one-constant-per-channel fit y ~ c x (weighted).
 
     ``x`` (n,) is the weighted column of a Lambertian BRDF in the fitted quantity, ``y``
-    (n, C) the weighted targets; scored as :func:`_select` scores its candidates.
+    (n, C) the weighted targets; scored as :func:`_select` scores its candidates, and
+    (with folds) in the l2 error of q, worst channel, ``qw`` as in :func:`_select`.
     """
     total = float(np.sum(y * y))
     if total <= 0.0:
-        return 0.0
+        return 0.0, 0.0
     if int(folds.max()) < 1:  # no folds (GCV): the residual of the one fit, leave-one-out
         xx = float(x @ x)
         c = (x @ y) / xx if xx > 0 else np.zeros(y.shape[1])
         h = x * x / xx if xx > 0 else np.zeros_like(x)
         r = (y - np.outer(x, c)) / np.maximum(1.0 - h, 1e-12)[:, None]
-        return float(np.sqrt(np.sum(r * r) / total))
+        return float(np.sqrt(np.sum(r * r) / total)), None
     sse = 0.0
+    sse_q = np.zeros(y.shape[1])
     for f in range(int(folds.max()) + 1):
         test = folds == f
         xx = float(x[~test] @ x[~test])
         c = (x[~test] @ y[~test]) / xx if xx > 0 else np.zeros(y.shape[1])
-        sse += float(np.sum((np.outer(x[test], c) - y[test]) ** 2))
-    return float(np.sqrt(sse / total))
+        r = np.outer(x[test], c) - y[test]
+        sse += float(np.sum(r * r))
+        sse_q += np.sum((r * qw[test, None]) ** 2, axis=0)
+    total_q = np.sum((y * qw[:, None]) ** 2, axis=0)
+    err_q = np.sqrt(np.divide(sse_q, total_q, out=np.zeros_like(total_q), where=total_q > 0))
+    return float(np.sqrt(sse / total)), float(np.max(err_q))
 
 
 def _cond_regularized(s: NDArray, std: _Svd | None, scale: NDArray | None, lam: float,

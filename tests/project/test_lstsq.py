@@ -832,20 +832,21 @@ def test_fit_measurements_type_errors(call, match):
 def test_fit_warns_on_a_narrow_lobe_between_few_incidences():
     """A sharp GGX lobe (alpha 0.05) measured at 8 incidences with the specular direction of
     each: an order-8 expansion cannot follow it between the measured directions, and its
-    cross-validated error is >= 1 (measured 1.023; a Lambertian fit scores 0.9995): warned,
-    with what to fit instead."""
+    cross-validated error is >= 1 (measured in f 1.023, in q, the metric of the warning,
+    1.29; a Lambertian fit scores 0.9995 in f): warned, with what to fit instead."""
     from project import Measurements
 
     wi, wo = gonio_pairs()
     m = Measurements(wi, wo, lambert_ggx(wi, wo, [0.3], [0.8], 0.05))
     with pytest.warns(RuntimeWarning, match=r"fit predicts held-out samples no better than "
-                                            r"zero: cross-validated error 1\.02 \(isotropic "
-                                            r"HemiZernike\(8\), 1440 samples, 10-fold CV on "
+                                            r"zero: cross-validated error 1\.29 \(l2 of q; "
+                                            r"isotropic HemiZernike\(8\), 1440 samples, "
+                                            r"10-fold CV on "
                                             r"direction pairs\)\. An expansion cannot follow "
                                             r"these data .*project\.fit_model\(measurements, "
                                             r"'lambert\+ggx'\)"):
         cm = fit(m, HemiZernike(8))
-    assert cm.info["validation_error"] >= 1.0
+    assert cm.info["validation_error"] >= 1.0 and cm.info["validation_l2"] >= 1.0
     assert cm.info["lambert_validation_error"] < 1.0
 
 
@@ -860,6 +861,7 @@ def test_fit_does_not_warn_on_a_smooth_brdf():
     cm = fit(m, HemiZernike(8))
     v, lam = cm.info["validation_error"], cm.info["lambert_validation_error"]
     assert v < lam < 1.0
+    assert cm.info["validation_l2"] < cm.info["lambert_validation_l2"]
 
 
 def test_lambert_validation_error_by_hand(rng):
