@@ -26,6 +26,7 @@ from .measurements import Measurements
 from .quadrature import default_quantity, project, radial_table, tail_fraction, truncation_error
 from .reciprocity import Reciprocity, reciprocity
 from .sampling import PairSamples, brdf_errors, peak_resolving_pairs
+from .tabulated import TabulatedBRDF, tabulate
 
 __all__ = [
     "BRDF",
@@ -36,6 +37,7 @@ __all__ = [
     "MirrorDelta",
     "PairSamples",
     "Reciprocity",
+    "TabulatedBRDF",
     "bin_samples",
     "brdf_errors",
     "fit",
@@ -47,6 +49,7 @@ __all__ = [
     "radial_table",
     "reciprocity",
     "read_table",
+    "tabulate",
     "tail_fraction",
     "tessellate_hemisphere",
     "truncation_error",

@@ -22,6 +22,15 @@ The "factored" family
     antisymmetric part of non-reciprocal data; such a model has ``reciprocal`` False and
     its params hold ``phi_turn`` = 1.0 (params without it are half-turn lobes).
 
+The "tabulated" family
+----------------------
+``"tabulated"`` (a (n_h, n_d, m, C) table of q = f cos cos and three grid options)
+    :class:`project.tabulated.TabulatedBRDF`, a trilinear table in (theta_h, theta_d, phi_d)
+    at any resolution, phi_d over the whole turn for non-reciprocal data. "Fitting" is
+    sampling: ``fit_model(brdf, "tabulated", bins=(n_h, n_d, n_phi))`` calls
+    :func:`project.tabulated.tabulate` (options ``bins``, ``quantity``, ``phi_turn``,
+    ``warp_d``, ``sample``) and reports the errors on the error pairs below.
+
 Fitting
 -------
 The parametric families are fitted as follows (for ``"factored"`` see its module). The
@@ -88,6 +97,7 @@ from ..crossval import fold_report, out_of_fold
 from ..factored import D_WARPS, PHI_TURNS, WARPS, FactoredLobe, fit_factored
 from ..measurements import Measurements
 from ..sampling import DEFAULT_WIDTHS, brdf_errors, peak_resolving_pairs
+from ..tabulated import TabulatedBRDF, tabulate
 from ._geometry import _Geometry
 from ._solver import _covariance, _solve
 from .dsbrdf import _DSBRDF, DS_COEFFS
@@ -99,7 +109,8 @@ __all__ = ["DEFAULTS", "FACTORED_OPTIONS", "FAMILIES", "METRICS", "SAMPLE_DEFAUL
            "FittedModel", "fit_model"]
 
 #: The parametric families :func:`fit_model` knows.
-FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807")
+FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807",
+            "tabulated")
 METRICS = ("l2", "log")
 #: Options of :func:`fit_model` and their defaults (``lobes`` is for "lafortune", default 1,
 #: and "dsbrdf", default 3; ``wavelength`` for "rr8807").
@@ -115,6 +126,9 @@ SAMPLE_DEFAULTS = {"seed": 0, "restarts": 4, "lobes": None, "max_nfev": None,
 #: :func:`project.factored.fit_factored`, and the error pairs.
 FACTORED_OPTIONS = ("rank", "bins", "warp", "warp_d", "color", "samples", "diffuse", "seed",
                     "max_iter", "tol", "accelerate", "phi_turn")
+#: Options of :func:`fit_model` for family "tabulated": those of :func:`project.tabulated.
+#: tabulate` (fitting is tabulating), and the error pairs.
+TABULATED_OPTIONS = ("bins", "quantity", "phi_turn", "warp_d", "sample")
 _ERROR_OPTIONS = ("error_n", "error_seed", "widths")
 
 
@@ -144,13 +158,16 @@ class FittedModel(BRDF):
 
     Parameters
     ----------
-    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807"}
+    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807",
+              "tabulated"}
     params : dict of str to array_like of float
         The family's parameters (its module, listed in :mod:`project.fitting`): ``kd``,
         ``ks`` (C,), ``alpha``, ``f0`` (scalars) for the microfacet families; ``kd`` (C,),
         ``rho`` (L, C), ``cx`` (< 0), ``cz`` (= 1), ``n`` (L,) for "lafortune"; the tables of
         :attr:`project.factored.FactoredLobe.params` for "factored"; ``kappa``, ``gamma``
-        (K, 6, C) for "dsbrdf"; ``kd``, ``ks``, ``kw``, ``f0`` (C,), ``sigma``, ``p``,
+        (K, 6, C) for "dsbrdf"; :attr:`project.tabulated.TabulatedBRDF.params` (``table``,
+        ``warp_d``, ``phi_turn``, ``cosines``) for "tabulated"; ``kd``, ``ks``, ``kw``,
+        ``f0`` (C,), ``sigma``, ``p``,
         ``a`` (scalars) and optionally ``wavelength`` (C,) for "rr8807". C, the number of
         channels, is the length of ``kd`` (the last axis of ``kappa``).
     info : dict, optional
@@ -192,6 +209,9 @@ class FittedModel(BRDF):
                             f"{type(params).__name__}")
         if _check_family(family) == "factored":
             self._init_factored(params, info)
+            return
+        if family == "tabulated":
+            self._init_tabulated(params, info)
             return
         if family == "dsbrdf":
             kappa = _param(params, "kappa", 3, low=0.0)
@@ -287,8 +307,20 @@ class FittedModel(BRDF):
         self.nbytes = self._model.nbytes
         self.info = {} if info is None else dict(info)
 
+    def _init_tabulated(self, params: Mapping[str, ArrayLike], info: dict | None) -> None:
+        # TabulatedBRDF checks the keys, the table and the grid options
+        self._model = TabulatedBRDF.from_params(dict(params))
+        self.family = "tabulated"
+        self.reciprocal = self._model.reciprocal
+        self.params = self._model.params
+        self.channels = self._model.channels
+        self._scalar = self.channels == 1
+        self.nparams = self._model.nparams
+        self.nbytes = self._model.nbytes
+        self.info = {} if info is None else dict(info)
+
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
-        if self.family == "factored":
+        if self.family in ("factored", "tabulated"):
             return self._model._eval(wi, wo)
         return self._model.value(self._x, _Geometry(wi, wo))
 
@@ -299,6 +331,11 @@ class FittedModel(BRDF):
             return (f"FittedModel('factored', rank={m.rank}, bins={m.bins}, warp={m.warp!r}, "
                     f"warp_d={m.warp_d!r}{turn}, channels={self.channels}, "
                     f"nbytes={self.nbytes})")
+        if self.family == "tabulated":
+            m = self._model
+            return (f"FittedModel('tabulated', bins={m.bins}, warp_d={m.warp_d!r}, "
+                    f"phi_turn={m.phi_turn!r}, quantity={m.quantity!r}, "
+                    f"channels={self.channels}, nbytes={self.nbytes})")
 
         def fmt(v: NDArray) -> str:
             return np.array2string(np.asarray(v), precision=4, separator=", ")
@@ -332,7 +369,8 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         Any object with ``eval(wi, wo)`` returning finite values >= 0 (an analytic model,
         :func:`project.measured.read_merl`, a coefficient matrix...). Delta terms are not
         fitted (warned).
-    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807"}
+    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807",
+              "tabulated"}
         See each family's module (listed in :mod:`project.fitting`) for its parameters
         and bounds.
     metric : {"l2", "log"}
@@ -395,6 +433,8 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         return _fit_samples(brdf, _check_family(family), metric, options, start)
     if _check_family(family) == "factored":
         return _fit_factored(brdf, metric, options, start)
+    if family == "tabulated":
+        return _fit_tabulated(brdf, metric, options, start)
     opts = _options(family, options)
     if not callable(getattr(brdf, "eval", None)):
         raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)) or "
@@ -469,9 +509,9 @@ def _fit_parametric(family: str, model, geom: _Geometry, f: NDArray, w: NDArray,
 def _fit_samples(meas: Measurements, family: str, metric: str, options: dict,
                  start: float) -> FittedModel:
     """fit_model(measurements, family): a weighted fit to the samples, cross-validated."""
-    if family == "factored":
+    if family in ("factored", "tabulated"):
         raise ValueError(
-            "family 'factored' tabulates a BRDF on a dense rule in the half/difference angles "
+            f"family {family!r} tabulates a BRDF on a dense rule in the half/difference angles "
             "and needs a BRDF that can be evaluated anywhere; scattered samples do not cover "
             f"its tables. Fit a parametric family to {meas!r} ('lambert+ggx', "
             "'lambert+beckmann', 'lafortune', 'dsbrdf', 'rr8807'), or compare them with "
@@ -542,6 +582,33 @@ def _fit_factored(brdf: object, metric: str, options: dict, start: float) -> Fit
                    "rank": lobe.rank, "bins": lobe.bins, "warp": lobe.warp,
                    "warp_d": lobe.warp_d, "phi_turn": lobe.phi_turn, "restarts": 1,
                    "samples": {"fit": "project.factored.rusinkiewicz_rule",
+                               "error": f"error_n={error_n}, error_seed={error_seed}"},
+                   "seconds": time.perf_counter() - start}
+    return fitted
+
+
+def _fit_tabulated(brdf: object, metric: str, options: dict, start: float) -> FittedModel:
+    """fit_model(brdf, "tabulated"): tabulate, then the errors on independent pairs."""
+    if metric != "l2":
+        raise ValueError(f"family 'tabulated' is measured in the l2 metric only, got metric="
+                         f"{metric!r}")
+    unknown = sorted(set(options) - set(TABULATED_OPTIONS) - set(_ERROR_OPTIONS) - {"seed"})
+    if unknown:
+        raise TypeError(f"fit_model() got unknown option(s) {', '.join(map(repr, unknown))} "
+                        f"for family 'tabulated'; its options are "
+                        f"{', '.join(map(repr, TABULATED_OPTIONS + _ERROR_OPTIONS))}")
+    seed = nonneg_int(options.get("seed", 0), "seed")
+    error_n = nonneg_int(options.get("error_n", DEFAULTS["error_n"]), "error_n")
+    error_seed = options.get("error_seed")
+    error_seed = seed + 1 if error_seed is None else nonneg_int(error_seed, "error_seed")
+    widths = options.get("widths", DEFAULTS["widths"])
+    tab = tabulate(brdf, **{k: v for k, v in options.items() if k in TABULATED_OPTIONS})
+    fitted = FittedModel("tabulated", tab.params)
+    err = brdf_errors(brdf, fitted, peak_resolving_pairs(error_n, seed=error_seed,
+                                                         widths=widths))
+    fitted.info = {**tab.info, **err, "metric": metric, "warp_d": tab.warp_d,
+                   "phi_turn": tab.phi_turn, "quantity": tab.quantity, "restarts": 1,
+                   "samples": {"fit": "project.tabulated.tabulate (grid nodes)",
                                "error": f"error_n={error_n}, error_seed={error_seed}"},
                    "seconds": time.perf_counter() - start}
     return fitted
