@@ -88,6 +88,7 @@ from .model import (  # noqa: F401
     FAMILIES,
     METRICS,
     SAMPLE_DEFAULTS,
+    TABULATED_OPTIONS,
     FittedModel,
     fit_model,
 )

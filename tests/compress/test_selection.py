@@ -322,3 +322,24 @@ def test_reciprocal_choice_errors():
         select(gonio_samples(GGX), 0.1, reciprocal=False)
     with pytest.raises(TypeError, match="candidate reciprocal must be True or False"):
         select(Lambert(0.5), 0.1, candidates=[{**NONREC[0], "reciprocal": 0}], **FAST)
+
+
+def test_tables_end_the_ladder():
+    """A tolerance no compact candidate meets is met by a table of q (second order in the
+    cell size), chosen for its bytes; a tolerance below the finest table says so."""
+    from project.models import CookTorrance as CT
+
+    sharp = CT([0.2, 0.3, 0.4], 0.08, "ggx", ior=1.5)
+    cands = [{"form": "modal", "kind": "zernike", "order": 2},
+             {"form": "model", "family": "tabulated", "bins": (16, 12, 8), "phi_turn": "half"},
+             {"form": "model", "family": "tabulated", "bins": (32, 24, 16),
+              "phi_turn": "half"}]
+    rep = select(sharp, 0.2, candidates=cands, dtypes=("float16",), **FAST)
+    assert rep.family == "tabulated" and rep.info["selected"]["l2"] <= 0.2
+    # predicted bytes are the stored ones: n_h n_d (n_phi / 2) channels values
+    assert rep.info["bytes"] == 2 * rep.nparams
+    row = rep.info["selected"]
+    assert row["bytes"] == 2 * _reals({**row["candidate"]}, 3)
+    with pytest.raises(NoCandidateError, match=r"the finest table, .*bins=\(32, 24, 16\).* "
+                                               r"reaches .*needs finer tables"):
+        select(sharp, 1e-4, candidates=cands, dtypes=("float16",), **FAST)
