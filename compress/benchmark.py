@@ -1,24 +1,67 @@
-"""How small, and how accurate, measured materials become: the MERL benchmark.
+"""How small, and how accurate, measured materials become: the benchmark on real files.
 
-:func:`benchmark_merl` runs :func:`compress.select` on every MERL ``.binary`` file of a
-folder (Matusik et al. 2003 layout), one process per material, and writes
+:func:`benchmark_files` runs :func:`compress.select` on every measured file of a folder --
+MERL ``.binary`` tables (Matusik et al. 2003 layout, :func:`project.measured.read_merl`)
+and RGL-EPFL ``.bsdf`` tensor files (Dupuy & Jakob 2018, :func:`project.measured.read_rgl`),
+told apart by their suffix, both kinds in one folder allowed -- one process per material,
+and writes
 
-- ``materials.csv``: per material, for each tolerance, the smallest representation that
-  meets it (its family, storage type, bytes, l2 and log errors) and, for the strictest
-  tolerance, the image error: the relative RMS difference of
+- ``materials.csv``: per material its ``format`` ("merl" or "rgl"); for each tolerance the
+  smallest representation that meets it (its family, storage type, bytes, l2 and log
+  errors; the most accurate measured one when none does); the reciprocity of the data
+  (``reciprocity_residual``, ``reciprocity_floor`` and its standard error: the relative L2
+  norm of the antisymmetric part, below which no reciprocal form can go,
+  :func:`project.reciprocity`) and the forms ``select`` let compete on it (``forms``);
+  ``best_l2``, ``best_bytes``: the smallest error any candidate reached, which is what a
+  ``NoCandidateError`` leaves; ``select_seconds``: the time of :func:`compress.select` alone;
+  and, for the strictest tolerance, the image error: the relative RMS difference of
   :func:`compress.render_sphere` pictures under three lights (from the view direction, 45
   degrees and 75 degrees off it), the source BRDF against the representation;
-- ``candidates.csv``: every measured candidate of every material (bytes and errors);
+- ``candidates.csv``: every candidate of every material (bytes, errors, whether its form is
+  reciprocal);
 - ``pareto.png``: bytes against l2 error per family, every measured candidate and, per
-  family, the median over the materials of the smallest error within each size, with two
-  published sizes marked: the neural BRDF of Sztrajman et al.
+  family, the median over the materials of the smallest error within each size; the
+  non-reciprocal forms (full-turn factored lobes, general matrices) drawn dashed with
+  square markers; two published sizes marked: the neural BRDF of Sztrajman et al.
   (CGF 2021, 675 float32 = 2.7 kB) and the non-parametric factored microfacet model of
   Bagher, Snyder & Nowrouzezahrai (ACM TOG 2016, 3.2 kB);
-- ``summary.json``: medians and counts per tolerance.
+- ``summary.json``: medians and counts per tolerance, and the medians of the reciprocity
+  residual and floor, the image error and the time of ``select``.
+
+:func:`benchmark_merl` is the same on the MERL files of a folder only.
 
 Each material's result is written to ``materials/NAME.json`` as soon as it is done
 (atomically), so a run that is stopped resumes where it was: finished materials are read
-back, not recomputed.
+back, not recomputed. NAME is the file name without its suffix, so a folder must not hold
+``NAME.binary`` and ``NAME.bsdf`` both.
+
+Notes
+-----
+**Image error on RGL files.** An RGL file's f grows like 1 / cos(theta_o) towards grazing
+views (it stores f cos theta_o, see :mod:`project.measured.rgl`); the pictures hold
+L = f cos theta_i, so the rim of the sphere is brighter than in a reciprocal BRDF, but the
+pixels there are few: on ``paper_white_rgb.bsdf`` (size 128) the pixels with
+cos theta_o < 0.1, 1.1 % of the disc, hold at most 2.6 % of the sum of squares of the
+reference picture (under the 75-degree light; 1.1 % at 45 degrees, none with the light at
+the view), so the image error is not dominated by the horizon.
+
+**Measured example** (the three RGL files of :mod:`project.reciprocity`'s table, default
+candidates, tolerances 0.10 and 0.05, 2 workers on 2 cores, 83 s in all; bytes and l2 of
+the smallest representation within each tolerance, "nr" a non-reciprocal form; floor the
+reciprocity floor; seconds of select, both tolerances):
+
+==========================  ======  ===============  ================  =====  =======
+file                        floor   0.10: B, l2      0.05: B, l2       image  seconds
+==========================  ======  ===============  ================  =====  =======
+paper_white_rgb.bsdf        0.0224  16, 0.044        16, 0.044         0.080  2.4
+colodur_napoli_4f_rgb.bsdf  0.0518  124, 0.095       720, 0.047 nr     0.067  10.7
+vch_golden_yellow_rgb.bsdf  0.0876  3180, 0.093 nr   73728, 0.037 nr   0.019  75.0
+==========================  ======  ===============  ================  =====  =======
+
+The paper is a Lambertian plus GGX lobe; the matte paint a rank-1 factored lobe at 0.10
+and a full-turn factored lobe with a general Zernike residual at 0.05 (its floor exceeds
+0.05); the glossy vinyl a full-turn rank-8 factored lobe at 0.10 and a full-turn table at
+0.05. The image error is that of the 0.05 representation.
 """
 
 from __future__ import annotations
@@ -43,9 +86,17 @@ from basis.validation import dask_client
 from project.io import atomic_path
 
 from .render import render_sphere
-from .selection import DEFAULT_CANDIDATES, NoCandidateError, select
+from .selection import DEFAULT_CANDIDATES, NoCandidateError, _is_reciprocal, select
 
-__all__ = ["PUBLISHED", "benchmark_merl", "image_error"]
+__all__ = ["FORMATS", "PUBLISHED", "benchmark_files", "benchmark_merl", "image_error"]
+
+#: Measured file formats the benchmark reads, by suffix.
+FORMATS = {"merl": ".binary", "rgl": ".bsdf"}
+#: Names of the formats in messages and titles.
+_FORMAT_NAMES = {"merl": "MERL", "rgl": "RGL"}
+#: Seed of select's error pairs (its default), with which the reciprocity of a material
+#: that met no tolerance is measured again: the same pairs as select's own measurement.
+_PAIR_SEED = 2027
 
 #: Published sizes of compact MERL representations (bytes per material), for the chart.
 PUBLISHED = {"neural BRDF (Sztrajman et al. 2021)": 2700,
@@ -93,12 +144,32 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
                    progress: bool = False, client: Any = None) -> list[dict[str, Any]]:
     """Run :func:`compress.select` on every MERL file of ``folder`` and chart the result.
 
+    :func:`benchmark_files` with ``formats=("merl",)``: the same arguments, tables and
+    errors; ``folder`` holds MERL ``.binary`` files (``NAME.binary``), other files are
+    ignored.
+    """
+    return benchmark_files(folder, out, formats=("merl",), tols=tols, workers=workers,
+                           materials=materials, candidates=candidates, error_n=error_n,
+                           progress=progress, client=client)
+
+
+def benchmark_files(folder: str | os.PathLike, out: str | os.PathLike, *,
+                    formats: Iterable[str] = ("merl", "rgl"),
+                    tols: Sequence[float] = (0.05, 0.10), workers: int = 2,
+                    materials: Iterable[str] | None = None,
+                    candidates: Sequence[dict] | None = None, error_n: int = 1 << 16,
+                    progress: bool = False, client: Any = None) -> list[dict[str, Any]]:
+    """Run :func:`compress.select` on every measured file of ``folder`` and chart the result.
+
     Parameters
     ----------
     folder : path
-        A folder of MERL ``.binary`` files (``NAME.binary``).
+        A folder of measured files: MERL ``NAME.binary`` and RGL-EPFL ``NAME.bsdf`` (of the
+        ``formats`` asked for; files with other suffixes are ignored).
     out : path
         Output folder (created): the files of the module notes.
+    formats : iterable of str
+        Which of :data:`FORMATS` to read (default both).
     tols : sequence of float
         Tolerances on the l2 error; the representation is selected for the smallest and
         the others are read off the same candidate table (candidates are built in order
@@ -106,7 +177,7 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
     workers : int
         Processes, one material each at a time (1: in this process).
     materials : iterable of str, optional
-        Names (without ``.binary``) to run; default all files of ``folder``.
+        Names (file names without the suffix) to run; default all files of ``folder``.
     candidates : sequence of dict, optional
         Passed to :func:`compress.select` (default its :data:`DEFAULT_CANDIDATES`).
     error_n : int
@@ -125,28 +196,50 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
 
     Raises
     ------
+    NotADirectoryError
+        ``folder`` is not a folder.
+    FileNotFoundError
+        No file of the formats in ``folder``, or a name of ``materials`` without its file.
+    ValueError
+        Bad ``formats`` or ``tols``, or two files of one name (``NAME.binary`` and
+        ``NAME.bsdf``).
     RuntimeError
         Some materials failed (after the tables of the others are written); the message
         names the first and why. A new call retries only those.
     """
     folder, out = Path(folder), Path(out)
+    kinds = tuple(dict.fromkeys([formats] if isinstance(formats, str) else formats))
+    if not kinds or not set(kinds) <= set(FORMATS):
+        raise ValueError(f"formats must name some of {tuple(FORMATS)}, got {formats!r}")
+    suffixes = [FORMATS[k] for k in kinds]
+    what = " and ".join(f"{_FORMAT_NAMES[k]} {FORMATS[k]}" for k in kinds)
     if not folder.is_dir():
-        raise NotADirectoryError(f"no folder of MERL files at {str(folder)!r}")
+        kind = _FORMAT_NAMES[kinds[0]] if len(kinds) == 1 else f"measured ({what})"
+        raise NotADirectoryError(f"no folder of {kind} files at {str(folder)!r}")
     tols = tuple(sorted(float(t) for t in tols))
     if not tols or not all(0 < t < math.inf for t in tols):
         raise ValueError(f"tols must be positive numbers, got {tols}")
-    names = sorted(p.name[:-len(".binary")] for p in folder.glob("*.binary"))
+    files: dict[str, Path] = {}
+    for f in sorted(folder.iterdir()):
+        if f.suffix not in suffixes or not f.is_file():
+            continue
+        if f.stem in files:
+            raise ValueError(f"two files of the material {f.stem!r} in {str(folder)!r}: "
+                             f"{files[f.stem].name} and {f.name}; rename one")
+        files[f.stem] = f
+    names = sorted(files)
     if materials is not None:
         wanted = list(materials)
         missing = sorted(set(wanted) - set(names))
         if missing:
-            raise FileNotFoundError(f"no {missing[0]}.binary in {str(folder)!r} (and "
-                                    f"{len(missing) - 1} more missing)")
+            raise FileNotFoundError(
+                f"no {' or '.join(missing[0] + x for x in suffixes)} in {str(folder)!r} "
+                f"(and {len(missing) - 1} more missing)")
         names = wanted
     if not names:
-        raise FileNotFoundError(f"no .binary files in {str(folder)!r}")
+        raise FileNotFoundError(f"no {' or '.join(suffixes)} files in {str(folder)!r}")
     if client is not None:
-        dask_client(client, "benchmark_merl")
+        dask_client(client, "benchmark_merl" if kinds == ("merl",) else "benchmark_files")
     (out / "materials").mkdir(parents=True, exist_ok=True)
     todo = [n for n in names if not (out / "materials" / f"{n}.json").is_file()]
     job = dict(tols=tols, candidates=None if candidates is None else list(candidates),
@@ -162,7 +255,7 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
         bar.update(1)
 
     def path(name: str) -> str:
-        return str(folder / f"{name}.binary")
+        return str(files[name])
 
     if client is not None:
         from distributed import as_completed as dask_completed
@@ -195,7 +288,9 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
     summary = _summary(rows, tols)
     with atomic_path(out / "summary.json") as tmp:
         tmp.write_text(json.dumps(summary, indent=2))
-    _chart(cands, out / "pareto.png")
+    kinds_run = sorted({r.get("format", "merl") for r in rows})
+    _chart(cands, out / "pareto.png",
+           " and ".join(_FORMAT_NAMES[k] for k in kinds_run) + " materials")
     if failed:
         first = next(iter(failed.items()))
         raise RuntimeError(f"{len(failed)} of {len(failed) + len(names)} materials failed "
@@ -232,43 +327,141 @@ def _threads_per_worker(workers: int) -> Iterator[None]:
 
 
 def _run_one(path: str, out: str, job: dict) -> None:
-    """Select for one material and write materials/NAME.json (in a worker process)."""
-    from project.measured import read_merl
+    """Select for one material and write materials/NAME.json (in a worker process).
 
-    name = Path(path).name[:-len(".binary")]
-    start = time.perf_counter()
-    brdf = read_merl(path)
+    select runs at the strictest tolerance and the others are read off its table, unless
+    its reciprocity decision, which depends on the tolerance, lets other forms compete at
+    a looser one and it left some candidates out at the strictest (a floor above the
+    strictest tolerance but below a looser one lets the reciprocal forms, about half the
+    size, compete at the looser one only); then it runs again at that tolerance.
+    """
+    from project.measured import read_merl, read_rgl
+
+    p = Path(path)
+    name, kind = p.stem, "rgl" if p.suffix == FORMATS["rgl"] else "merl"
+    brdf = (read_rgl if kind == "rgl" else read_merl)(p)
     tols = job["tols"]
-    kwargs = dict(candidates=job["candidates"] or DEFAULT_CANDIDATES, error_n=job["error_n"])
-    rep = None
-    try:
-        rep = select(brdf, tols[0], **kwargs)
-        table = rep.info["candidates"]
-    except NoCandidateError as e:
-        table = e.candidates
-    seconds = time.perf_counter() - start
-    row: dict[str, Any] = {"material": name, "select_seconds": round(seconds, 2)}
-    measured = [r for r in table if r["status"] == "measured"]
+    strict = _select(brdf, tols[0], job)
+    runs = {tols[0]: strict}
+    for t in tols[1:]:
+        forms = _forms_at(strict["reciprocity"], t)
+        if forms == strict["reciprocity"]["forms"] or not _why(strict["table"]):
+            runs[t] = {**strict, "seconds": 0.0,
+                       "reciprocity": {**strict["reciprocity"], "forms": forms}}
+        else:
+            runs[t] = _select(brdf, t, job)
+    first = runs[tols[0]]
+    measured = _merged([r["table"] for r in runs.values()])
+    measured = [r for r in measured if r["status"] == "measured"]
+    if not measured:
+        raise RuntimeError(f"no candidate of {name} could be measured: "
+                           f"{first['table'][0]['status'] if first['table'] else '-'}")
+    best = min(measured, key=lambda r: (r["l2"], r["bytes"]))
+    rec = first["reciprocity"]
+    row: dict[str, Any] = {
+        "material": name, "format": kind,
+        "reciprocity_residual": rec["residual"], "reciprocity_floor": rec["floor"],
+        "reciprocity_floor_stderr": rec["floor_stderr"],
+        "best_l2": best["l2"], "best_bytes": best["bytes"], "best_label": best["label"],
+        "select_seconds": round(sum(r["seconds"] for r in runs.values()), 2)}
     for t in tols:
-        ok = [r for r in measured if r["l2"] <= t]
+        own = [r for r in runs[t]["table"] if r["status"] == "measured"]
+        ok = [r for r in own if r["l2"] <= t]
         pick = min(ok, key=lambda r: (r["bytes"], r["l2"])) if ok else \
-            min(measured, key=lambda r: r["l2"])
+            min(own or measured, key=lambda r: (r["l2"], r["bytes"]))
         key = f"{t:g}"
         row.update({f"meets_{key}": bool(ok), f"family_{key}": pick["family"],
                     f"label_{key}": pick["label"], f"dtype_{key}": pick["dtype"],
+                    f"reciprocal_{key}": _is_reciprocal(pick["candidate"]),
                     f"bytes_{key}": pick["bytes"], f"l2_{key}": pick["l2"],
-                    f"l2_stderr_{key}": pick["l2_stderr"], f"log_{key}": pick["log"]})
+                    f"l2_stderr_{key}": pick["l2_stderr"], f"log_{key}": pick["log"],
+                    f"forms_{key}": "+".join(runs[t]["reciprocity"]["forms"]),
+                    f"seconds_{key}": round(runs[t]["seconds"], 2)})
         if t == tols[0]:
+            rep = first["rep"]
             if rep is None:  # the most accurate measured candidate, rebuilt by its own fit
                 rep = select(brdf, math.inf, candidates=[pick["candidate"]],
-                             dtypes=(pick["dtype"],), error_n=1024)
+                             dtypes=(pick["dtype"],), error_n=1024,
+                             reciprocal=_is_reciprocal(pick["candidate"]))
             row[f"image_{key}"] = image_error(brdf, rep)
     keep = ("label", "form", "family", "dtype", "bytes", "l2", "l2_stderr", "log",
             "seconds", "status")
-    rec = {"row": row, "candidates": [{k: _plain(r[k]) for k in keep} for r in table]}
+    cands = [{**{k: _plain(r[k]) for k in keep}, "reciprocal": _is_reciprocal(r["candidate"])}
+             for r in _merged([r["table"] for r in runs.values()])]
+    recorded = {k: _plain(rec[k]) for k in ("residual", "floor", "floor_stderr")}
+    recorded.update(forms={f"{t:g}": r["reciprocity"]["forms"] for t, r in runs.items()},
+                    why={f"{t:g}": r["reciprocity"]["why"] for t, r in runs.items()})
+    record = {"row": {k: _plain(v) for k, v in row.items()}, "candidates": cands,
+              "reciprocity": recorded}
     target = Path(out) / "materials" / f"{name}.json"
     with atomic_path(target) as tmp:
-        tmp.write_text(json.dumps(rec, default=_plain))
+        tmp.write_text(json.dumps(record, default=_plain))
+
+
+def _select(brdf: Any, tol: float, job: dict) -> dict[str, Any]:
+    """Run select at ``tol``; return what the benchmark keeps of it.
+
+    A dict: ``rep`` (None when no candidate met ``tol``), ``table``, ``reciprocity``
+    (residual, floor, floor_stderr, forms, why) and ``seconds``.
+    """
+    import project
+    from project.reciprocity import MIN_PAIRS
+
+    candidates = job["candidates"] or DEFAULT_CANDIDATES
+    start = time.perf_counter()
+    try:
+        rep = select(brdf, tol, candidates=candidates, error_n=job["error_n"])
+    except NoCandidateError as e:
+        seconds = time.perf_counter() - start
+        # measured as select does (on its pairs), so the decision is select's
+        r = project.reciprocity(brdf, n=max(job["error_n"], MIN_PAIRS), seed=_PAIR_SEED)
+        rec = dict(residual=r.residual, floor=r.floor, floor_stderr=r.floor_stderr)
+        rec.update(forms=_forms_at(rec, tol), why=_why(e.candidates))
+        return dict(rep=None, table=e.candidates, reciprocity=rec, seconds=seconds)
+    seconds = time.perf_counter() - start
+    info = rep.info["reciprocity"]
+    rec = {k: info[k] for k in ("residual", "floor", "floor_stderr", "forms", "why")}
+    return dict(rep=rep, table=rep.info["candidates"], reciprocity=rec, seconds=seconds)
+
+
+def _forms_at(rec: dict[str, Any], tol: float) -> list[str]:
+    """Return the forms select's reciprocity decision lets compete at ``tol``."""
+    from types import SimpleNamespace
+
+    from .selection import _reciprocal_forms
+
+    floor = math.nan if rec["floor"] is None else rec["floor"]
+    se = math.nan if rec["floor_stderr"] is None else rec["floor_stderr"]
+    allowed, _ = _reciprocal_forms(SimpleNamespace(floor=floor, floor_stderr=se, note=""),
+                                   tol, None, False)
+    return sorted("reciprocal" if a else "non-reciprocal" for a in allowed)
+
+
+def _merged(tables: list[list[dict]]) -> list[dict]:
+    """Return the first table with the candidates measured only in the later ones added."""
+    out = list(tables[0])
+    seen = {(r["label"], r["dtype"]) for r in out if r["status"] == "measured"}
+    for table in tables[1:]:
+        for r in table:
+            if r["status"] == "measured" and (r["label"], r["dtype"]) not in seen:
+                seen.add((r["label"], r["dtype"]))
+                out = [o for o in out if (o["label"], o["dtype"]) != (r["label"], r["dtype"])]
+                out.append(r)
+    out.sort(key=lambda r: (r["bytes"] is None, r["bytes"] or 0, r["label"]))
+    return out
+
+
+#: Start of the status of a candidate that select left out for its form (reciprocal or not).
+_SKIPPED_FORM = ("skipped: a reciprocal form (", "skipped: a non-reciprocal form (")
+
+
+def _why(table: list[dict]) -> str:
+    """Return select's reason for the forms, from a candidate it left out ("" if none)."""
+    for r in table:
+        for start in _SKIPPED_FORM:
+            if r["status"].startswith(start):
+                return r["status"][len(start):-1]
+    return ""
 
 
 def _plain(v: Any) -> Any:
@@ -304,29 +497,50 @@ def _summary(rows: list[dict], tols: tuple[float, ...]) -> dict[str, Any]:
             "median_l2": float(np.median([r[f"l2_{key}"] for r in rows])),
             "families": fams,
             "fail": [r["material"] for r in rows if not r[f"meets_{key}"]],
+            # what a NoCandidateError left: the smallest error reached, and the floor
+            "fail_best": {r["material"]: {"l2": r[f"l2_{key}"],
+                                          "floor": r.get("reciprocity_floor")}
+                          for r in rows if not r[f"meets_{key}"]},
         }
     first = f"{tols[0]:g}"
-    images = [r[f"image_{first}"] for r in rows if r.get(f"image_{first}") is not None]
-    out["median_image_error"] = float(np.median(images)) if images else None
-    out["median_select_seconds"] = float(np.median([r["select_seconds"] for r in rows]))
+    out["median_image_error"] = _median(r.get(f"image_{first}") for r in rows)
+    out["median_select_seconds"] = _median(r.get("select_seconds") for r in rows)
+    out["max_select_seconds"] = max((r["select_seconds"] for r in rows), default=None)
+    # runs written before the reciprocity columns existed have none (their data: MERL)
+    out["median_reciprocity_residual"] = _median(r.get("reciprocity_residual") for r in rows)
+    out["median_reciprocity_floor"] = _median(r.get("reciprocity_floor") for r in rows)
+    out["formats"] = {k: sum(r.get("format", "merl") == k for r in rows) for k in FORMATS}
     return out
 
 
-def _chart(cands: list[dict], path: Path) -> None:
+def _median(values: Iterable[Any]) -> float | None:
+    """Median of the finite numbers among ``values`` (None, NaN left out); None if none."""
+    v = [float(x) for x in values if x is not None and math.isfinite(float(x))]
+    return float(np.median(v)) if v else None
+
+
+def _chart(cands: list[dict], path: Path, title: str = "measured materials") -> list[str]:
+    """Draw the chart of the module notes; return the labels of its legend."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(7.5, 5.0), layout="constrained")
     ax = fig.add_subplot()
     measured = [c for c in cands if c["status"] == "measured" and c["l2"] is not None]
-    families = sorted({c["family"] for c in measured})
+    # a family's reciprocal and non-reciprocal forms (half- and full-turn factored lobes,
+    # symmetric and general matrices) are drawn apart; records written before the
+    # non-reciprocal forms existed hold reciprocal ones only
+    groups = sorted({_group(c) for c in measured}, key=lambda g: (not g[1], g[0]))
     materials = sorted({c["material"] for c in cands})
-    for i, fam in enumerate(families):
-        pts = [(c["bytes"], c["l2"]) for c in measured if c["family"] == fam]
-        x, y = np.array(pts, dtype=float).T
-        colour = f"C{i % 10}"
-        ax.scatter(x, y, s=6, alpha=0.25, color=colour, linewidths=0)
-        sizes, med = _envelope(measured, fam, materials)
-        ax.plot(sizes, med, "o-", ms=3, color=colour, label=f"{fam}")
+    colours: dict[str, str] = {}
+    for fam, reciprocal in groups:
+        colour = colours.setdefault(fam, f"C{len(colours) % 10}")
+        own = [c for c in measured if _group(c) == (fam, reciprocal)]
+        x, y = np.array([(c["bytes"], c["l2"]) for c in own], dtype=float).T
+        marker, line = ("o", "-") if reciprocal else ("s", "--")
+        ax.scatter(x, y, s=6, alpha=0.25, color=colour, marker=marker, linewidths=0)
+        sizes, med = _envelope(own, materials)
+        ax.plot(sizes, med, marker=marker, ls=line, ms=3, color=colour,
+                label=fam if reciprocal else f"{fam}, non-reciprocal")
     for i, (name, size) in enumerate(PUBLISHED.items()):
         ax.axvline(size, color="0.3", ls=("--", ":")[i % 2], lw=1)
         ax.text(size * 1.03, 0.95 - 0.07 * i, name, transform=ax.get_xaxis_transform(),
@@ -337,24 +551,27 @@ def _chart(cands: list[dict], path: Path) -> None:
     ax.set_yscale("log")
     ax.set_xlabel("bytes per material")
     ax.set_ylabel("relative L2 error of f cos cos (peak-resolving)")
-    ax.set_title(f"MERL materials: size against error ({len({c['material'] for c in cands})}"
-                 " materials)")
+    ax.set_title(f"{title}: size against error ({len(materials)} materials)")
     ax.legend(fontsize=7, loc="lower left")
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=120, format="png")
+    return [t.get_text() for t in ax.get_legend().get_texts()]
 
 
-def _envelope(measured: list[dict], family: str,
-              materials: list[str]) -> tuple[NDArray, NDArray]:
-    """Median over the materials of the smallest error of ``family`` within each size.
+def _group(c: dict) -> tuple[str, bool]:
+    return c["family"], bool(c.get("reciprocal", True))
 
+
+def _envelope(own: list[dict], materials: list[str]) -> tuple[NDArray, NDArray]:
+    """Median over the materials of the smallest error of one family within each size.
+
+    ``own`` holds the measured candidates of the family (of one form, reciprocal or not).
     A material counts at a size once one of its candidates of the family fits in it. A
     candidate that was not built (a smaller one met the tolerance first) counts with the
     error of the smaller one, so the curve is an upper bound of the true envelope; it
     avoids the bias of plain medians per size, where only the hardest materials reach the
     large candidates.
     """
-    own = [c for c in measured if c["family"] == family]
     sizes = np.unique([c["bytes"] for c in own])
     best = np.full((len(materials), sizes.size), np.inf)
     index = {m: k for k, m in enumerate(materials)}

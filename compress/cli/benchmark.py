@@ -1,4 +1,4 @@
-"""``scatmodes benchmark merl DIR``: compress.select over a folder of MERL files."""
+"""``scatmodes benchmark [merl|rgl] DIR``: compress.select over a folder of measured files."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type,
                add_progress: Callable[[argparse.ArgumentParser], None],
                wants_progress: Callable[[argparse.Namespace], bool],
                dask_client: Callable[[argparse.Namespace], Any]) -> None:
-    """Register ``benchmark`` (with its one target, ``merl``) on the subcommand parser.
+    """Register ``benchmark`` (targets ``merl``, ``rgl``, or none: both) on the subcommand parser.
 
     ``add_progress`` adds the command line's ``--progress`` flag, ``wants_progress`` reads
     it, ``dask_client`` opens the Dask client of ``--scheduler`` (the conventions of
@@ -24,17 +24,26 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type,
     """
     b = sub.add_parser(
         "benchmark", formatter_class=fmt,
-        help="the smallest representation of every MERL material within a tolerance",
-        description="Runs compress.select on every MERL .binary file of DIR (one process "
-                    "per material) and writes OUT/materials.csv (per material, for each "
-                    "tolerance: family, storage type, bytes, l2 and log errors, and the image "
-                    "error of lit-sphere renders), OUT/candidates.csv, OUT/pareto.png (bytes "
-                    "against error per family, published sizes marked) and OUT/summary.json. "
-                    "Finished materials are kept in OUT/materials/, so a stopped run resumes.",
+        help="the smallest representation of every measured material (MERL, RGL) within "
+             "a tolerance",
+        description="Runs compress.select on every measured file of DIR -- MERL .binary "
+                    "and RGL-EPFL .bsdf files, told apart by their suffix (merl or rgl: "
+                    "only those) -- one process per material, and writes OUT/materials.csv "
+                    "(per material: the reciprocity residual and floor of the data and the "
+                    "forms select let compete, the smallest error reached, the time of "
+                    "select, and for each tolerance: family, storage type, bytes, l2 and "
+                    "log errors, and the image error of lit-sphere renders), "
+                    "OUT/candidates.csv, OUT/pareto.png (bytes against error per family, "
+                    "non-reciprocal forms dashed, published sizes marked) and "
+                    "OUT/summary.json. Finished materials are kept in OUT/materials/, so a "
+                    "stopped run resumes.",
         epilog="examples:\n  scatmodes benchmark merl merl-folder --out bench --workers 2\n"
-               "  scatmodes benchmark merl merl-folder --materials blue-acrylic,gold-paint")
-    b.add_argument("target", choices=("merl",), help="what to benchmark (MERL files)")
-    b.add_argument("folder", metavar="DIR", help="folder of MERL .binary files")
+               "  scatmodes benchmark merl merl-folder --materials blue-acrylic,gold-paint\n"
+               "  scatmodes benchmark rgl rgl-folder --tols 0.10,0.05\n"
+               "  scatmodes benchmark measured-folder   # .binary and .bsdf files")
+    b.add_argument("target", nargs="?", choices=("merl", "rgl"), default=None,
+                   help="only MERL .binary or only RGL .bsdf files (default: both)")
+    b.add_argument("folder", metavar="DIR", help="folder of measured files")
     b.add_argument("--out", default="scatmodes-benchmark", metavar="OUT",
                    help="output folder, created if missing (default %(default)s)")
     b.add_argument("--tols", default="0.05,0.10",
@@ -57,7 +66,7 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type,
 def run(args: argparse.Namespace, *, wants_progress: Callable[[argparse.Namespace], bool],
         dask_client: Callable[[argparse.Namespace], Any]) -> int:
     """Run the benchmark and print the summary."""
-    from ..benchmark import benchmark_merl
+    from ..benchmark import FORMATS, benchmark_files
 
     try:
         tols = [float(t) for t in args.tols.split(",")]
@@ -69,9 +78,11 @@ def run(args: argparse.Namespace, *, wants_progress: Callable[[argparse.Namespac
         [n.strip() for n in args.materials.split(",") if n.strip()]
     # --workers counts local processes here (no Dask needed); --scheduler alone uses Dask
     with dask_client(argparse.Namespace(workers=None, scheduler=args.scheduler)) as client:
-        benchmark_merl(args.folder, args.out, tols=tols, workers=args.workers,
-                       materials=names, error_n=args.error_pairs,
-                       progress=wants_progress(args), client=client)
+        benchmark_files(args.folder, args.out,
+                        formats=tuple(FORMATS) if args.target is None else (args.target,),
+                        tols=tols, workers=args.workers, materials=names,
+                        error_n=args.error_pairs, progress=wants_progress(args),
+                        client=client)
     summary = json.loads((Path(args.out) / "summary.json").read_text())
     print(json.dumps(summary, indent=2))
     print(f"wrote {Path(args.out) / 'materials.csv'}, candidates.csv, pareto.png, "
