@@ -270,9 +270,10 @@ def test_fit_metric_candidates_and_the_message_of_no_candidate():
 
 
 class _Tilted:
-    """f = kd (1 + c cos theta_i) / pi: not reciprocal. Its antisymmetric part in q has the
-    squared norm kd^2 c^2 / (120 pi^2) (2 pi)^2 against ||q||^2 = kd^2 (4/3)(1/3 + c/2 +
-    c^2/5) (2 pi)^2 / pi^2 over H x H, so the floor is 0.0497 at c = 0.5 (closed form)."""
+    """f = kd (1 + c cos theta_i) / pi: not reciprocal. Over H x H its antisymmetric part
+    a = (q - q^T) / 2 has ||a||^2 = kd^2 c^2 (2 pi)^2 / (480 pi^2) and ||q||^2 = kd^2 (2 pi)^2
+    (1/3)(1/3 + c/2 + c^2/5) / pi^2, so the floor is 0.0497 at c = 0.5 (closed form; the
+    stability atlas checks it against quadrature)."""
 
     isotropic, reciprocal, channels = True, False, 1
 
