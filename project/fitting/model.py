@@ -96,7 +96,7 @@ from ..brdf import BRDF
 from ..crossval import fold_report, out_of_fold
 from ..factored import D_WARPS, PHI_TURNS, WARPS, FactoredLobe, fit_factored
 from ..measurements import Measurements
-from ..sampling import DEFAULT_WIDTHS, brdf_errors, peak_resolving_pairs
+from ..sampling import DEFAULT_WIDTHS, PairSamples, brdf_errors, peak_resolving_pairs
 from ..tabulated import TabulatedBRDF, tabulate
 from ._geometry import _Geometry
 from ._solver import _covariance, _solve
@@ -559,57 +559,54 @@ def _fit_samples(meas: Measurements, family: str, metric: str, options: dict,
     return fitted
 
 
-def _fit_factored(brdf: object, metric: str, options: dict, start: float) -> FittedModel:
-    """fit_model(brdf, "factored"): fit_factored, then the errors on independent pairs."""
+def _table_options(family: str, metric: str, options: dict,
+                   own: tuple[str, ...]) -> tuple[dict, PairSamples, str]:
+    """Check the options of a tabulated family (its own and those of the error pairs).
+
+    Returns the family's own options, the independent error pairs and their description.
+    """
     if metric != "l2":
-        raise ValueError(f"family 'factored' is fitted in the l2 metric only, got metric="
+        raise ValueError(f"family {family!r} is measured in the l2 metric only, got metric="
                          f"{metric!r}")
-    unknown = sorted(set(options) - set(FACTORED_OPTIONS) - set(_ERROR_OPTIONS))
+    unknown = sorted(set(options) - set(own) - set(_ERROR_OPTIONS) - {"seed"})
     if unknown:
         raise TypeError(f"fit_model() got unknown option(s) {', '.join(map(repr, unknown))} "
-                        f"for family 'factored'; its options are "
-                        f"{', '.join(map(repr, FACTORED_OPTIONS + _ERROR_OPTIONS))}")
+                        f"for family {family!r}; its options are "
+                        f"{', '.join(map(repr, own + _ERROR_OPTIONS))}")
     seed = nonneg_int(options.get("seed", 0), "seed")
     error_n = nonneg_int(options.get("error_n", DEFAULTS["error_n"]), "error_n")
     error_seed = options.get("error_seed")
     error_seed = seed + 1 if error_seed is None else nonneg_int(error_seed, "error_seed")
-    widths = options.get("widths", DEFAULTS["widths"])
-    lobe = fit_factored(brdf, **{k: v for k, v in options.items() if k in FACTORED_OPTIONS})
+    pairs = peak_resolving_pairs(error_n, seed=error_seed,
+                                 widths=options.get("widths", DEFAULTS["widths"]))
+    return ({k: v for k, v in options.items() if k in own}, pairs,
+            f"error_n={error_n}, error_seed={error_seed}")
+
+
+def _fit_factored(brdf: object, metric: str, options: dict, start: float) -> FittedModel:
+    """fit_model(brdf, "factored"): fit_factored, then the errors on independent pairs."""
+    own, pairs, described = _table_options("factored", metric, options, FACTORED_OPTIONS)
+    lobe = fit_factored(brdf, **own)
     fitted = FittedModel("factored", lobe.params)
-    err = brdf_errors(brdf, fitted, peak_resolving_pairs(error_n, seed=error_seed,
-                                                         widths=widths))
-    fitted.info = {**lobe.info, **err, "fit_l2": lobe.info["error"], "metric": metric,
-                   "rank": lobe.rank, "bins": lobe.bins, "warp": lobe.warp,
+    fitted.info = {**lobe.info, **brdf_errors(brdf, fitted, pairs), "fit_l2": lobe.info["error"],
+                   "metric": metric, "rank": lobe.rank, "bins": lobe.bins, "warp": lobe.warp,
                    "warp_d": lobe.warp_d, "phi_turn": lobe.phi_turn, "restarts": 1,
                    "samples": {"fit": "project.factored.rusinkiewicz_rule",
-                               "error": f"error_n={error_n}, error_seed={error_seed}"},
+                               "error": described},
                    "seconds": time.perf_counter() - start}
     return fitted
 
 
 def _fit_tabulated(brdf: object, metric: str, options: dict, start: float) -> FittedModel:
     """fit_model(brdf, "tabulated"): tabulate, then the errors on independent pairs."""
-    if metric != "l2":
-        raise ValueError(f"family 'tabulated' is measured in the l2 metric only, got metric="
-                         f"{metric!r}")
-    unknown = sorted(set(options) - set(TABULATED_OPTIONS) - set(_ERROR_OPTIONS) - {"seed"})
-    if unknown:
-        raise TypeError(f"fit_model() got unknown option(s) {', '.join(map(repr, unknown))} "
-                        f"for family 'tabulated'; its options are "
-                        f"{', '.join(map(repr, TABULATED_OPTIONS + _ERROR_OPTIONS))}")
-    seed = nonneg_int(options.get("seed", 0), "seed")
-    error_n = nonneg_int(options.get("error_n", DEFAULTS["error_n"]), "error_n")
-    error_seed = options.get("error_seed")
-    error_seed = seed + 1 if error_seed is None else nonneg_int(error_seed, "error_seed")
-    widths = options.get("widths", DEFAULTS["widths"])
-    tab = tabulate(brdf, **{k: v for k, v in options.items() if k in TABULATED_OPTIONS})
+    own, pairs, described = _table_options("tabulated", metric, options, TABULATED_OPTIONS)
+    tab = tabulate(brdf, **own)
     fitted = FittedModel("tabulated", tab.params)
-    err = brdf_errors(brdf, fitted, peak_resolving_pairs(error_n, seed=error_seed,
-                                                         widths=widths))
-    fitted.info = {**tab.info, **err, "metric": metric, "warp_d": tab.warp_d,
-                   "phi_turn": tab.phi_turn, "quantity": tab.quantity, "restarts": 1,
+    fitted.info = {**tab.info, **brdf_errors(brdf, fitted, pairs), "metric": metric,
+                   "warp_d": tab.warp_d, "phi_turn": tab.phi_turn, "quantity": tab.quantity,
+                   "restarts": 1,
                    "samples": {"fit": "project.tabulated.tabulate (grid nodes)",
-                               "error": f"error_n={error_n}, error_seed={error_seed}"},
+                               "error": described},
                    "seconds": time.perf_counter() - start}
     return fitted
 
