@@ -115,6 +115,7 @@ from basis.directions import from_rusinkiewicz
 from basis.jit import pjit, prange, writable
 from basis.validation import check_bytes, choice
 
+from ._halfdiff import cell_trilinear, half_difference
 from .brdf import BRDF
 
 __all__ = ["D_WARPS", "PHI_TURNS", "QUANTITIES", "SAMPLES", "TabulatedBRDF", "tabulate",
@@ -319,31 +320,7 @@ def _tabulated_kernel(wi, wo, t, pd, period, divide, out):  # pragma: no cover -
     nh, nd, m, nc = t.shape[0], t.shape[1], t.shape[2], t.shape[3]
     half = period < 4.0
     for p in prange(n):
-        ni = math.sqrt(wi[p, 0] ** 2 + wi[p, 1] ** 2 + wi[p, 2] ** 2)
-        no = math.sqrt(wo[p, 0] ** 2 + wo[p, 1] ** 2 + wo[p, 2] ** 2)
-        ix, iy, iz = wi[p, 0] / ni, wi[p, 1] / ni, wi[p, 2] / ni
-        ox, oy, oz = wo[p, 0] / no, wo[p, 1] / no, wo[p, 2] / no
-        hx, hy, hz = ix + ox, iy + oy, iz + oz
-        dx, dy, dz = ix - ox, iy - oy, iz - oz
-        r = math.sqrt(hx * hx + hy * hy)
-        hn = math.sqrt(r * r + hz * hz)
-        if hn > 0.0:
-            theta_h = math.atan2(r, hz)
-            ct, st = hz / hn, r / hn
-        else:  # wi = -wo on the horizon: no half vector, take h = z
-            theta_h = 0.0
-            ct, st = 1.0, 0.0
-        if r > 0.0:
-            cp, sp = hx / r, hy / r
-        else:  # h = z: phi_h = 0
-            cp, sp = 1.0, 0.0
-        theta_d = math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), hn)
-        a = ct * (cp * dx + sp * dy) - st * dz + 0.0  # + 0.0 turns -0.0 into +0.0
-        b = cp * dy - sp * dx + 0.0
-        if half and (b < 0.0 or (b == 0.0 and a < 0.0)):  # fold by reciprocity
-            a = -a
-            b = -b
-        phi_d = math.atan2(b, a)
+        theta_h, theta_d, phi_d, iz, oz = half_difference(wi, wo, p, half)
         if phi_d < 0.0:
             phi_d += 2.0 * math.pi
         u = math.sqrt(min(theta_h / (0.5 * math.pi), 1.0)) * (nh - 1)
@@ -363,12 +340,7 @@ def _tabulated_kernel(wi, wo, t, pd, period, divide, out):  # pragma: no cover -
             cc = max(iz, 0.0) * max(oz, 0.0)
             scale = 0.0 if cc == 0.0 else 1.0 / max(cc, 1e-300)
         for c in range(nc):
-            lo = ((1.0 - tv) * ((1.0 - tw) * t[i0, j0, k0, c] + tw * t[i0, j0, k1, c])
-                  + tv * ((1.0 - tw) * t[i0, j0 + 1, k0, c] + tw * t[i0, j0 + 1, k1, c]))
-            hi = ((1.0 - tv) * ((1.0 - tw) * t[i0 + 1, j0, k0, c] + tw * t[i0 + 1, j0, k1, c])
-                  + tv * ((1.0 - tw) * t[i0 + 1, j0 + 1, k0, c]
-                          + tw * t[i0 + 1, j0 + 1, k1, c]))
-            out[p, c] = ((1.0 - tu) * lo + tu * hi) * scale
+            out[p, c] = cell_trilinear(t, i0, j0, k0, k1, tu, tv, tw, c) * scale
 
 
 def tabulate(brdf: object, bins: object = (32, 32, 64), *, quantity: str = "q",

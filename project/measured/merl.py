@@ -104,6 +104,7 @@ from basis.directions import from_rusinkiewicz
 from basis.jit import pjit, prange
 from basis.validation import choice
 
+from .._halfdiff import cell_trilinear, half_difference
 from ..brdf import BRDF
 from ..io import atomic_path
 from ._files import as_path, input_file, output_file
@@ -308,32 +309,7 @@ def _merl_lookup_kernel(wi, wo, lut, trilinear, out):  # pragma: no cover - comp
     nc = lut.shape[3]
     nh, nd, npd = lut.shape[0], lut.shape[1], lut.shape[2]
     for p in prange(n):
-        ni = math.sqrt(wi[p, 0] ** 2 + wi[p, 1] ** 2 + wi[p, 2] ** 2)
-        no = math.sqrt(wo[p, 0] ** 2 + wo[p, 1] ** 2 + wo[p, 2] ** 2)
-        ix, iy, iz = wi[p, 0] / ni, wi[p, 1] / ni, wi[p, 2] / ni
-        ox, oy, oz = wo[p, 0] / no, wo[p, 1] / no, wo[p, 2] / no
-        hx, hy, hz = ix + ox, iy + oy, iz + oz
-        dx, dy, dz = ix - ox, iy - oy, iz - oz
-        r = math.sqrt(hx * hx + hy * hy)
-        hn = math.sqrt(r * r + hz * hz)
-        if hn > 0.0:
-            theta_h = math.atan2(r, hz)
-            ct, st = hz / hn, r / hn
-        else:  # wi = -wo on the horizon: no half vector, take h = z (as to_rusinkiewicz)
-            theta_h = 0.0
-            ct, st = 1.0, 0.0
-        if r > 0.0:
-            cp, sp = hx / r, hy / r
-        else:  # h = z: phi_h = 0
-            cp, sp = 1.0, 0.0
-        theta_d = math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), hn)
-        # (wi - wo)/2 in the frame t1 = (ct cp, ct sp, -st), t2 = (-sp, cp, 0) of h
-        a = ct * (cp * dx + sp * dy) - st * dz + 0.0  # + 0.0 turns -0.0 into +0.0
-        b = cp * dy - sp * dx + 0.0
-        if b < 0.0 or (b == 0.0 and a < 0.0):  # fold phi_d into [0, pi): reciprocity
-            a = -a
-            b = -b
-        phi_d = math.atan2(b, a)
+        theta_h, theta_d, phi_d, _, _ = half_difference(wi, wo, p, True)
         u = math.sqrt(theta_h / (0.5 * math.pi)) * nh
         v = theta_d / (0.5 * math.pi) * nd
         w = phi_d / math.pi * npd
@@ -347,14 +323,7 @@ def _merl_lookup_kernel(wi, wo, lut, trilinear, out):  # pragma: no cover - comp
             k0 = k0 % npd
             k1 = (k0 + 1) % npd
             for c in range(nc):
-                lo = ((1.0 - tv) * ((1.0 - tw) * lut[i0, j0, k0, c] + tw * lut[i0, j0, k1, c])
-                      + tv * ((1.0 - tw) * lut[i0, j0 + 1, k0, c]
-                              + tw * lut[i0, j0 + 1, k1, c]))
-                hi = ((1.0 - tv) * ((1.0 - tw) * lut[i0 + 1, j0, k0, c]
-                                    + tw * lut[i0 + 1, j0, k1, c])
-                      + tv * ((1.0 - tw) * lut[i0 + 1, j0 + 1, k0, c]
-                              + tw * lut[i0 + 1, j0 + 1, k1, c]))
-                out[p, c] = (1.0 - tu) * lo + tu * hi
+                out[p, c] = cell_trilinear(lut, i0, j0, k0, k1, tu, tv, tw, c)
         else:
             i = min(int(u + 0.5), nh - 1)
             j = min(int(v + 0.5), nd - 1)
