@@ -381,7 +381,10 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
     how = measure.description
     if best is None:
         done = [r for r in table if r["status"] == "measured"]
-        closest = min(done, key=lambda r: r["error"]) if done else None
+        # the closest, and among equally close (storage types of one fit) the smallest
+        least = min((r["error"] for r in done), default=math.nan)
+        closest = min((r for r in done if r["error"] <= least * (1 + 1e-4)),
+                      key=lambda r: r["bytes"]) if done else None
         raise NoCandidateError(
             f"no candidate meets {'the scene radiance error' if judge else metric} <= "
             f"{tol:.4g} for {_short(brdf)}"
