@@ -100,9 +100,12 @@ DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
      "reciprocal": False},
     # the ladder's end: tables of q in the half/difference angles (project.tabulated), which
     # meet any tolerance down to their interpolation floor (second order in the cell size;
-    # 10 % at 9 to 37 kB on three RGL-EPFL files, 2.9-5.2 % at the finest here)
+    # 10 % at 9 to 37 kB on three RGL-EPFL files), up to the resolution of the MERL grid
+    # (90 x 90 x 360: 0.2-1.1 % on those files, 0.6 % on the green-acrylic MERL surrogate,
+    # 8.7 MB at float16 over half a turn)
     *({"form": "model", "family": "tabulated", "bins": b, "phi_turn": turn}
-      for b in ((16, 12, 4), (16, 12, 8), (24, 16, 16), (32, 24, 16))
+      for b in ((16, 12, 4), (16, 12, 8), (24, 16, 16), (32, 24, 16), (48, 32, 32),
+                (90, 90, 360))
       for turn in ("half", "full")),
 )
 #: The default candidates for measurements: parametric models (the factored tables need a
