@@ -25,6 +25,28 @@ def random_directions(rng: np.random.Generator, shape: int | tuple[int, ...] = (
     return w / np.linalg.norm(w, axis=-1, keepdims=True)
 
 
+def twin_pairs(wi: np.ndarray, wo: np.ndarray, isotropic: bool) -> list[tuple[int, int]]:
+    """Brute force: every (i, j), i < j, whose pairs are twins, i.e. repeats or reciprocal
+    (w_i, w_o exchanged), and for isotropic data equal in cos theta_i, cos theta_o and
+    w_i . w_o up to exchange: the reference for the fold grouping of Measurements.folds."""
+    n = len(wi)
+    out = []
+    for i in range(n):
+        for j in range(i + 1, n):
+            if isotropic:
+                a = sorted([wi[i, 2], wo[i, 2]]) + [wi[i] @ wo[i]]
+                b = sorted([wi[j, 2], wo[j, 2]]) + [wi[j] @ wo[j]]
+                same = np.allclose(a, b, rtol=0, atol=1e-12)
+            else:
+                same = (np.allclose(wi[i], wi[j], atol=1e-12) and
+                        np.allclose(wo[i], wo[j], atol=1e-12)) or \
+                       (np.allclose(wi[i], wo[j], atol=1e-12) and
+                        np.allclose(wo[i], wi[j], atol=1e-12))
+            if same:
+                out.append((i, j))
+    return out
+
+
 @pytest.fixture
 def rng() -> np.random.Generator:
     """A freshly seeded generator for each test (tests do not depend on their order)."""

@@ -298,19 +298,16 @@ class FittedModel(BRDF):
         self._model = FactoredLobe(
             _param(params, "kd", 1, low=0.0), params["h_table"], params["d_table"],
             phi_table=params.get("phi_table"), weights=params.get("weights"), **warps)
-        self.family = "factored"
-        self.reciprocal = self._model.reciprocal
-        self.params = self._model.params
-        self.channels = self._model.channels
-        self._scalar = self.channels == 1
-        self.nparams = self._model.nparams
-        self.nbytes = self._model.nbytes
-        self.info = {} if info is None else dict(info)
+        self._adopt("factored", info)
 
     def _init_tabulated(self, params: Mapping[str, ArrayLike], info: dict | None) -> None:
         # TabulatedBRDF checks the keys, the table and the grid options
         self._model = TabulatedBRDF.from_params(dict(params))
-        self.family = "tabulated"
+        self._adopt("tabulated", info)
+
+    def _adopt(self, family: str, info: dict | None) -> None:
+        """Take the attributes of a tabulated family from the model it wraps."""
+        self.family = family
         self.reciprocal = self._model.reciprocal
         self.params = self._model.params
         self.channels = self._model.channels

@@ -11,6 +11,7 @@ import pytest
 from basis import from_angles
 from project import Measurements
 from project.crossval import cross_validate, sample_errors
+from tests.conftest import twin_pairs as twins
 
 EPS = np.finfo(np.float64).eps
 
@@ -281,27 +282,6 @@ def twin_set(rng, isotropic):
     return Measurements(wi, wo, 1.0 + np.arange(n), isotropic=isotropic)
 
 
-def brute_twins(m, isotropic):
-    """(i, j) pairs of twins by brute force: repeat, reciprocal (and the isotropic invariants
-    cos theta_i, cos theta_o, w_i . w_o up to exchange)."""
-    wi, wo = m.wi, m.wo
-    out = []
-    for i in range(len(m)):
-        for j in range(i + 1, len(m)):
-            if isotropic:
-                a = sorted([wi[i, 2], wo[i, 2]]) + [wi[i] @ wo[i]]
-                b = sorted([wi[j, 2], wo[j, 2]]) + [wi[j] @ wo[j]]
-                same = np.allclose(a, b, rtol=0, atol=1e-12)
-            else:
-                same = (np.allclose(wi[i], wi[j], atol=1e-12) and
-                        np.allclose(wo[i], wo[j], atol=1e-12)) or \
-                       (np.allclose(wi[i], wo[j], atol=1e-12) and
-                        np.allclose(wo[i], wi[j], atol=1e-12))
-            if same:
-                out.append((i, j))
-    return out
-
-
 @pytest.mark.parametrize("isotropic", [True, False])
 @pytest.mark.parametrize("k", [2, 3, 10])
 def test_every_sample_predicted_once_by_a_fit_that_did_not_see_it(rng, isotropic, k):
@@ -332,7 +312,7 @@ def test_every_sample_predicted_once_by_a_fit_that_did_not_see_it(rng, isotropic
     for r, train_ids in predicted_by.items():
         assert ids[r] not in train_ids, f"sample {r} was in its own training set"
     # twins of a held-out sample are held out with it
-    pairs = brute_twins(m, isotropic)
+    pairs = twins(m.wi, m.wo, isotropic)
     assert len(pairs) == (40 if isotropic else 20)
     for i, j in pairs:
         assert ids[j] not in predicted_by[i] and ids[i] not in predicted_by[j]

@@ -13,6 +13,7 @@ import pytest
 from project import Measurements
 from project import lstsq as lstsq_module
 from project.measurements import HORIZON_ATOL, UNIT_ATOL
+from tests.conftest import twin_pairs as twins
 
 
 def direction(theta, phi):
@@ -246,26 +247,6 @@ def test_at_wavelengths_needs_wavelengths(rng):
 
 
 # ------------------------------------------------------------------------------------ folds
-def twins(wi, wo, isotropic):
-    """Brute force: (i, j) with the same pair up to repeat, reciprocity (and isotropy)."""
-    n = len(wi)
-    out = []
-    for i in range(n):
-        for j in range(i + 1, n):
-            if isotropic:
-                a = sorted([wi[i, 2], wo[i, 2]]) + [wi[i] @ wo[i]]
-                b = sorted([wi[j, 2], wo[j, 2]]) + [wi[j] @ wo[j]]
-                same = np.allclose(a, b, rtol=0, atol=1e-12)
-            else:
-                same = (np.allclose(wi[i], wi[j], atol=1e-12) and
-                        np.allclose(wo[i], wo[j], atol=1e-12)) or \
-                       (np.allclose(wi[i], wo[j], atol=1e-12) and
-                        np.allclose(wo[i], wi[j], atol=1e-12))
-            if same:
-                out.append((i, j))
-    return out
-
-
 @pytest.fixture
 def with_twins(rng):
     """60 pairs plus repeats, reciprocals and (isotropic) rotated and mirrored copies."""
