@@ -5,21 +5,21 @@ not see it, twins never split, determinism, bad arguments)."""
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 
 from basis import from_angles
 from project import Measurements
 from project.crossval import cross_validate, sample_errors
+from tests.conftest import random_directions
 from tests.conftest import twin_pairs as twins
 
+#: upper-hemisphere unit vectors, (n, 3)
+random_upper = partial(random_directions, upper=True)
+
 EPS = np.finfo(np.float64).eps
-
-
-def random_upper(rng, n):
-    w = rng.normal(size=(n, 3))
-    w[:, 2] = np.abs(w[:, 2])
-    return w / np.linalg.norm(w, axis=1, keepdims=True)
 
 
 @pytest.fixture

@@ -7,13 +7,19 @@ double loop.
 
 from __future__ import annotations
 
+from functools import partial
+
 import numpy as np
 import pytest
 
 from project import Measurements
 from project import lstsq as lstsq_module
 from project.measurements import HORIZON_ATOL, UNIT_ATOL
+from tests.conftest import random_directions
 from tests.conftest import twin_pairs as twins
+
+#: upper-hemisphere unit vectors, (n, 3)
+random_upper = partial(random_directions, upper=True)
 
 
 def direction(theta, phi):
@@ -21,12 +27,6 @@ def direction(theta, phi):
     theta, phi = np.broadcast_arrays(np.asarray(theta, float), np.asarray(phi, float))
     return np.stack([np.sin(theta) * np.cos(phi), np.sin(theta) * np.sin(phi), np.cos(theta)],
                     axis=-1)
-
-
-def random_upper(rng, n):
-    w = rng.normal(size=(n, 3))
-    w[:, 2] = np.abs(w[:, 2])
-    return w / np.linalg.norm(w, axis=1, keepdims=True)
 
 
 @pytest.fixture
