@@ -50,6 +50,22 @@ def half_difference(wi, wo, p, fold):  # pragma: no cover - compiled
 
 
 @njit(inline="always")
+def cell(x, n):  # pragma: no cover - compiled
+    """Return the cell i0 (of nodes 0..n-1, clamped to the last) and the weight t of x."""
+    i0 = min(int(x), n - 2)
+    return i0, min(x - i0, 1.0)
+
+
+@njit(inline="always")
+def periodic_cell(x, m):  # pragma: no cover - compiled
+    """Return the nodes k0, k1 of x on a periodic axis of m nodes and the weight of k1."""
+    k0 = int(x)
+    t = x - k0
+    k0 = k0 % m
+    return k0, (k0 + 1) % m, t
+
+
+@njit(inline="always")
 def cell_trilinear(t, i0, j0, k0, k1, tu, tv, tw, c):  # pragma: no cover - compiled
     """Return channel ``c`` of table ``t`` interpolated in cell (i0, j0, k0..k1)."""
     lo = ((1.0 - tv) * ((1.0 - tw) * t[i0, j0, k0, c] + tw * t[i0, j0, k1, c])

@@ -115,7 +115,7 @@ from basis.directions import from_rusinkiewicz
 from basis.jit import pjit, prange, writable
 from basis.validation import check_bytes, choice
 
-from ._halfdiff import cell_trilinear, half_difference
+from ._halfdiff import cell, cell_trilinear, half_difference, periodic_cell
 from .brdf import BRDF
 
 __all__ = ["D_WARPS", "PHI_TURNS", "QUANTITIES", "SAMPLES", "TabulatedBRDF", "tabulate",
@@ -327,14 +327,9 @@ def _tabulated_kernel(wi, wo, t, pd, period, divide, out):  # pragma: no cover -
         x = min(theta_d / (0.5 * math.pi), 1.0)
         v = (1.0 - (1.0 - x) ** (1.0 / pd)) * (nd - 1)
         w = phi_d / period * m
-        i0 = min(int(u), nh - 2)
-        tu = min(u - i0, 1.0)
-        j0 = min(int(v), nd - 2)
-        tv = min(v - j0, 1.0)
-        k0 = int(w)
-        tw = w - k0
-        k0 = k0 % m
-        k1 = (k0 + 1) % m
+        i0, tu = cell(u, nh)
+        j0, tv = cell(v, nd)
+        k0, k1, tw = periodic_cell(w, m)
         scale = 1.0
         if divide:
             cc = max(iz, 0.0) * max(oz, 0.0)

@@ -104,7 +104,7 @@ from basis.directions import from_rusinkiewicz
 from basis.jit import pjit, prange
 from basis.validation import choice
 
-from .._halfdiff import cell_trilinear, half_difference
+from .._halfdiff import cell, cell_trilinear, half_difference, periodic_cell
 from ..brdf import BRDF
 from ..io import atomic_path
 from ._files import as_path, input_file, output_file
@@ -314,14 +314,9 @@ def _merl_lookup_kernel(wi, wo, lut, trilinear, out):  # pragma: no cover - comp
         v = theta_d / (0.5 * math.pi) * nd
         w = phi_d / math.pi * npd
         if trilinear:
-            i0 = min(int(u), nh - 2)
-            tu = min(u - i0, 1.0)
-            j0 = min(int(v), nd - 2)
-            tv = min(v - j0, 1.0)
-            k0 = int(w)
-            tw = w - k0
-            k0 = k0 % npd
-            k1 = (k0 + 1) % npd
+            i0, tu = cell(u, nh)
+            j0, tv = cell(v, nd)
+            k0, k1, tw = periodic_cell(w, npd)
             for c in range(nc):
                 out[p, c] = cell_trilinear(lut, i0, j0, k0, k1, tu, tv, tw, c)
         else:
