@@ -1,9 +1,11 @@
 """Least-squares fits of scattered BRDF measurements, and a tessellation of the hemisphere.
 
-A measurement is a triple (w_i, w_o, f). The fit finds the symmetric coefficient matrix M of
+A measurement is a triple (w_i, w_o, f). The fit finds the coefficient matrix M of
 q(w_i, w_o) = b(w_i)^T M b(w_o) (q = f, or q = f cos(theta_i) cos(theta_o)) that best matches
 the measurements in the least-squares sense. Reciprocity (M = M^T) and, optionally,
-isotropy are built into the unknowns, so every fit is reciprocal whatever the noise.
+isotropy are built into the unknowns, so a fit is reciprocal whatever the noise; measured
+data that are not reciprocal (see :func:`project.reciprocity`) can be fitted with
+``reciprocal=False``, whose unknowns are every entry of a general M (about twice as many).
 
 Koenderink, van Doorn & Stavridi (ECCV 1996, sec. 6) fit measured brick on a tessellation of
 the hemisphere into 40 triangles (a once-subdivided icosahedron) with a pseudoinverse;
@@ -66,7 +68,7 @@ _DESIGN_COPIES = 3
 # -- the unknowns ------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class Unknowns:
-    """Which entries of the symmetric matrix M each unknown of a fit stands for.
+    """Which entries of the matrix M each unknown of a fit stands for.
 
     Built by :func:`unknowns`; the order and scaling are described in :func:`design_matrix`.
     All arrays have one entry per unknown.
@@ -85,10 +87,14 @@ class Unknowns:
         Number of entries of the dense M that share the unknown (1, 2 or 4).
     sizes : tuple of int
         Block sizes k_m (isotropic); empty for the general layout.
+    reciprocal : bool
+        True: M is symmetric and an unknown with ``rows != cols`` also stands for the
+        transposed entry. False: M is general and every unknown is one entry (or, isotropic,
+        one entry of a block B_m, shared by its cos-cos and sin-sin copies).
     """
 
     rows: NDArray[np.int64]  # cos (or only) function of the first factor, per unknown
-    cols: NDArray[np.int64]  # ... of the second factor; rows[u] <= cols[u] in block order
+    cols: NDArray[np.int64]  # ... of the second; rows[u] <= cols[u] in block order (reciprocal)
     sin_rows: NDArray[np.int64]  # sin partners (index ``size``, a zero column, when none)
     sin_cols: NDArray[np.int64]
     block: NDArray[np.int64]  # azimuthal order m (isotropic) or -1 (general)
@@ -96,6 +102,7 @@ class Unknowns:
     bcol: NDArray[np.int64]
     mult: NDArray[np.float64]  # entries of the dense M that share this unknown
     sizes: tuple[int, ...]  # block sizes k_m (isotropic)
+    reciprocal: bool = True
 
     @property
     def count(self) -> int:
@@ -103,14 +110,16 @@ class Unknowns:
         return int(self.rows.size)
 
 
-def unknowns(basis: Basis, isotropic: bool = True) -> Unknowns:
-    """Return the unknowns of a fit in ``basis``: the free entries of an (isotropic) symmetric M.
+def unknowns(basis: Basis, isotropic: bool = True, *, reciprocal: bool = True) -> Unknowns:
+    """Return the unknowns of a fit in ``basis``: the free entries of an (isotropic) M.
 
     Parameters
     ----------
     basis : basis.Basis
     isotropic : bool
-        One block per azimuthal order (True) or every entry M_jk, j <= k (False).
+        One block per azimuthal order (True) or every entry of M (False).
+    reciprocal : bool
+        M symmetric (True: entries j <= k) or general (False: every entry).
 
     Returns
     -------
@@ -121,16 +130,21 @@ def unknowns(basis: Basis, isotropic: bool = True) -> Unknowns:
     >>> from basis import HemiZernike
     >>> unknowns(HemiZernike(8)).count, unknowns(HemiZernike(8), isotropic=False).count
     (55, 1035)
+    >>> unknowns(HemiZernike(8), reciprocal=False).count
+    85
     """
     _check_basis(basis, hemisphere=False)
-    return _layout(basis, _flag(isotropic, "isotropic"))
+    return _layout(basis, _flag(isotropic, "isotropic"), _flag(reciprocal, "reciprocal"))
 
 
-def _count(basis: Basis, isotropic: bool) -> int:
+def _count(basis: Basis, isotropic: bool, reciprocal: bool = True) -> int:
     """Return the unknowns of :func:`_layout`, counted from the block sizes (no allocation)."""
+    def entries(k: int) -> int:
+        return k * (k + 1) // 2 if reciprocal else k * k
+
     if not isotropic:
-        return basis.size * (basis.size + 1) // 2
-    return sum(c.size * (c.size + 1) // 2 for c in basis.azimuthal_blocks().cos)
+        return entries(basis.size)
+    return sum(entries(c.size) for c in basis.azimuthal_blocks().cos)
 
 
 #: Bytes per unknown of :func:`_layout`: seven int64 index arrays and the float multiplicity,
@@ -139,18 +153,27 @@ def _count(basis: Basis, isotropic: bool) -> int:
 _LAYOUT_BYTES = 8 * 8 * 2
 
 
-def _layout(basis: Basis, isotropic: bool) -> Unknowns:
+def _entries(k: int, reciprocal: bool) -> tuple[NDArray, NDArray]:
+    """Return the (row, column) of every unknown entry of a k x k matrix, row by row."""
+    if reciprocal:
+        return np.triu_indices(k)
+    return np.divmod(np.arange(k * k), k)
+
+
+def _layout(basis: Basis, isotropic: bool, reciprocal: bool = True) -> Unknowns:
     size = basis.size
+    count = _count(basis, isotropic, reciprocal)
     # before any index array: HemiZernike(200), isotropic=False has 206 million unknowns
-    check_bytes(_LAYOUT_BYTES * _count(basis, isotropic),
-                f"the index arrays of {_count(basis, isotropic)} unknowns "
+    check_bytes(_LAYOUT_BYTES * count,
+                f"the index arrays of {count} unknowns "
                 f"({'isotropic' if isotropic else 'general'} {basis!r})")
     if not isotropic:
-        r, c = np.triu_indices(size)
+        r, c = _entries(size, reciprocal)
         none = np.full(r.size, size, dtype=np.int64)
+        mult = np.where(r == c, 1.0, 2.0) if reciprocal else np.ones(r.size)
         return Unknowns(r.astype(np.int64), c.astype(np.int64), none, none,
-                       np.full(r.size, -1, dtype=np.int64), r.astype(np.int64),
-                       c.astype(np.int64), np.where(r == c, 1.0, 2.0), ())
+                        np.full(r.size, -1, dtype=np.int64), r.astype(np.int64),
+                        c.astype(np.int64), mult, (), reciprocal)
     parts: list[tuple[NDArray, ...]] = []
     sizes = []
     blocks = basis.azimuthal_blocks()
@@ -158,17 +181,18 @@ def _layout(basis: Basis, isotropic: bool) -> Unknowns:
         if m == 0:
             sin_idx = np.full(cos_idx.size, size)
         sizes.append(cos_idx.size)
-        j, k = np.triu_indices(cos_idx.size)
-        mult = np.where(j == k, 1.0, 2.0) * (1.0 if m == 0 else 2.0)
+        j, k = _entries(cos_idx.size, reciprocal)
+        mult = (np.where(j == k, 1.0, 2.0) if reciprocal else 1.0) * (1.0 if m == 0 else 2.0)
+        mult = np.broadcast_to(mult, j.shape)
         parts.append((cos_idx[j], cos_idx[k], sin_idx[j], sin_idx[k], np.full(j.size, m),
                       j, k, mult))
     cat = [np.concatenate([p[i] for p in parts]) if parts else np.empty(0) for i in range(8)]
     ints = [np.asarray(a, dtype=np.int64) for a in cat[:7]]
-    return Unknowns(*ints, np.asarray(cat[7], dtype=np.float64), tuple(sizes))
+    return Unknowns(*ints, np.asarray(cat[7], dtype=np.float64), tuple(sizes), reciprocal)
 
 
 def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
-                  isotropic: bool = True) -> NDArray[np.float64]:
+                  isotropic: bool = True, reciprocal: bool = True) -> NDArray[np.float64]:
     """Build the linear map from the fit's unknowns to q at each measured pair of directions.
 
     Parameters
@@ -180,7 +204,9 @@ def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
         columns (their even and odd halves span the same functions there), which is why
         :func:`fit` refuses them; the matrix itself is still well defined.
     isotropic : bool
-        Unknowns of an isotropic (True) or general reciprocal (False) matrix.
+        Unknowns of an isotropic (True) or general (False) matrix.
+    reciprocal : bool
+        Unknowns of a symmetric (True) or general, non-reciprocal (False) matrix.
 
     Returns
     -------
@@ -201,6 +227,9 @@ def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
       [b_cj(w_i) b_ck(w_o) + b_sj(w_i) b_sk(w_o)] (+ the transposed term when j < k; no sin
       terms when m = 0), divided by sqrt(mult), mult the number of entries of M sharing the
       unknown: 1 (j = k, m = 0), 2 (j < k or m > 0, not both), 4 (j < k and m > 0).
+    * ``reciprocal=False``: every entry (j, k) instead of j <= k, row-major, with no
+      transposed term: the column is b_j(w_i) b_k(w_o) (``isotropic=False``) or
+      [b_cj(w_i) b_ck(w_o) + b_sj(w_i) b_sk(w_o)] / sqrt(mult), mult 1 (m = 0) or 2.
 
     Each unknown is sqrt(mult) times the matrix entry, so the squared norm of the unknowns is
     the squared Frobenius norm of M, which for an orthonormal basis is the L2 norm of q over
@@ -216,7 +245,7 @@ def design_matrix(wi: ArrayLike, wo: ArrayLike, basis: Basis, *,
     (1, 55)
     """
     wi, wo, _ = _check_pairs(wi, wo)
-    lay = unknowns(basis, isotropic)
+    lay = unknowns(basis, isotropic, reciprocal=reciprocal)
     check_bytes(8.0 * wi.shape[0] * lay.count * 2,
                 f"the design matrix of {wi.shape[0]} samples and {lay.count} unknowns")
     return _design(basis.eval(wi), basis.eval(wo), lay)
@@ -229,7 +258,8 @@ def _design(bi: NDArray, bo: NDArray, lay: Unknowns) -> NDArray[np.float64]:
     bi = np.concatenate([bi, np.zeros((n, 1))], axis=1)
     bo = np.concatenate([bo, np.zeros((n, 1))], axis=1)
     a = bi[:, lay.rows] * bo[:, lay.cols]
-    off = lay.rows != lay.cols
+    # the transposed entry shares the unknown only in a symmetric matrix
+    off = (lay.rows != lay.cols) & lay.reciprocal
     a[:, off] += bi[:, lay.cols[off]] * bo[:, lay.rows[off]]
     sin = lay.sin_rows < bi.shape[1] - 1
     if np.any(sin):
@@ -240,7 +270,8 @@ def _design(bi: NDArray, bo: NDArray, lay: Unknowns) -> NDArray[np.float64]:
     return a
 
 
-def to_unknowns(cm: CoefficientMatrix, *, isotropic: bool = True) -> NDArray[np.float64]:
+def to_unknowns(cm: CoefficientMatrix, *, isotropic: bool = True,
+                reciprocal: bool | None = None) -> NDArray[np.float64]:
     """Return the fit's unknowns for a coefficient matrix.
 
     ``design_matrix(...) @ to_unknowns(cm)`` is q at the sampled pairs.
@@ -250,6 +281,9 @@ def to_unknowns(cm: CoefficientMatrix, *, isotropic: bool = True) -> NDArray[np.
     cm : basis.CoefficientMatrix
     isotropic : bool
         Layout as in :func:`design_matrix`; True needs an isotropic ``cm``.
+    reciprocal : bool, optional
+        Layout as in :func:`design_matrix`; default ``cm.reciprocal``. True needs a
+        reciprocal ``cm``.
 
     Returns
     -------
@@ -259,7 +293,11 @@ def to_unknowns(cm: CoefficientMatrix, *, isotropic: bool = True) -> NDArray[np.
     """
     if not isinstance(cm, CoefficientMatrix):
         raise TypeError(f"cm must be a CoefficientMatrix, got {type(cm).__name__}")
-    lay = _layout(cm.basis, _flag(isotropic, "isotropic"))
+    rec = cm.reciprocal if reciprocal is None else _flag(reciprocal, "reciprocal")
+    if rec and not cm.reciprocal:
+        raise ValueError("cm is not reciprocal: use reciprocal=False, or the reciprocal part "
+                         "cm.symmetric_part()")
+    lay = _layout(cm.basis, _flag(isotropic, "isotropic"), rec)
     scale = np.sqrt(lay.mult)
     scalar = cm.matrix.ndim == 2 if not cm.is_isotropic else cm.blocks[0].ndim == 2
     if isotropic:
@@ -287,15 +325,17 @@ def _unpack(z: NDArray, basis: Basis, lay: Unknowns, isotropic: bool, scalar: bo
         for m in range(len(lay.sizes)):
             sel = lay.block == m
             j, kk = lay.brow[sel], lay.bcol[sel]
+            if lay.reciprocal:
+                blocks[m][:, kk, j] = x[sel].T
             blocks[m][:, j, kk] = x[sel].T
-            blocks[m][:, kk, j] = x[sel].T
         return CoefficientMatrix.from_blocks(basis, [b[0] if scalar else b for b in blocks],
-                                             quantity, info=info)
+                                             quantity, info=info, reciprocal=lay.reciprocal)
     mat = np.zeros((ch, basis.size, basis.size))
+    if lay.reciprocal:
+        mat[:, lay.cols, lay.rows] = x.T
     mat[:, lay.rows, lay.cols] = x.T
-    mat[:, lay.cols, lay.rows] = x.T
     return CoefficientMatrix(basis, mat[0] if scalar else mat, quantity, isotropic=False,
-                             info=info)
+                             info=info, reciprocal=lay.reciprocal)
 
 
 # -- the fit -----------------------------------------------------------------------------------
@@ -310,8 +350,9 @@ def fit(
     weights: ArrayLike | None = None,
     regularization: float | str = "auto",
     penalty: str | None = None,
+    reciprocal: bool = True,
 ) -> CoefficientMatrix:
-    """Fit a reciprocal coefficient matrix to scattered BRDF measurements by least squares.
+    """Fit a coefficient matrix to scattered BRDF measurements by least squares.
 
     Called as ``fit(wi, wo, values, basis, ...)`` or ``fit(measurements, basis, ...)``.
 
@@ -354,6 +395,12 @@ def fit(
         ``"degree"`` for the automatic choices, ``"identity"`` for a number (its meaning
         before ``"auto"`` existed). ``fit(..., regularization=cm.info["regularization"],
         penalty=cm.info["penalty"])`` reproduces an automatic fit ``cm``.
+    reciprocal : bool
+        True (default): a symmetric matrix, reciprocal by construction. False: a general
+        matrix (``CoefficientMatrix(..., reciprocal=False)``) for data that are measurably
+        not reciprocal (:func:`project.reciprocity`): about twice the unknowns, and held-out
+        pairs no longer inform the fit at their reciprocal incidences, so it needs more
+        samples.
 
     Returns
     -------
@@ -361,7 +408,7 @@ def fit(
         Isotropic block form if ``isotropic``, dense otherwise; ``info`` holds:
 
         * ``method`` ("lstsq"), ``unknowns``, ``samples`` (those of weight > 0),
-          ``isotropic``, ``quantity``, ``basis``;
+          ``isotropic``, ``reciprocal``, ``quantity``, ``basis``;
         * ``condition_number`` (alias ``cond``): largest / smallest singular value of the
           weighted design matrix W^(1/2) A, inf if rank-deficient; ``rank``;
         * ``regularization``: the weight lambda used (chosen or given); ``penalty``;
@@ -516,6 +563,7 @@ def fit(
     _check_basis(basis)
     quantity = choice(quantity, "quantity", QUANTITIES)
     isotropic = _flag(isotropic, "isotropic")
+    reciprocal = _flag(reciprocal, "reciprocal")
     y, scalar = _check_values(values, n)
     w = _check_weights(weights, n)
     how, lam = _check_regularization(regularization)
@@ -524,8 +572,9 @@ def fit(
     keep = w > 0
     wi, wo, y, w = wi[keep], wo[keep], y[keep], w[keep]
     samples = int(wi.shape[0])
-    unknowns = _count(basis, isotropic)  # closed form: the index arrays come after the check
-    kind = "isotropic" if isotropic else "general"
+    # closed form: the index arrays come after the check
+    unknowns = _count(basis, isotropic, reciprocal)
+    kind = ("isotropic" if isotropic else "general") + ("" if reciprocal else " non-reciprocal")
     if samples == 0 or (samples < unknowns and how == "given" and lam == 0.0):
         raise ValueError(
             f"fit is underdetermined: {samples} samples (of weight > 0) for {unknowns} "
@@ -534,7 +583,7 @@ def fit(
     check_bytes(_fit_bytes(samples, unknowns, basis.size, how, pen),
                 f"fitting {unknowns} unknowns to {samples} samples (design matrix, its SVDs "
                 "and square matrices of the unknowns)")
-    lay = _layout(basis, isotropic)
+    lay = _layout(basis, isotropic, reciprocal)
     if quantity == "f_cos":
         y = y * (wi[:, 2] * wo[:, 2])[:, None]
     sw = np.sqrt(w)
@@ -621,6 +670,7 @@ def fit(
         "validation_l2": validation_q,
         "lambert_validation_l2": lambert_q,
         "isotropic": isotropic,
+        "reciprocal": reciprocal,
         "quantity": quantity,
         "basis": repr(basis),
     }

@@ -135,7 +135,7 @@ def project(
         antisymmetric part, is lost). False: the general matrix of
         :class:`basis.CoefficientMatrix` with ``reciprocal=False``, which also holds the
         antisymmetric part (twice the numbers of a symmetric one; for a reciprocal BRDF it
-        is symmetric to quadrature precision). ``"lstsq"`` supports True only.
+        is symmetric to quadrature precision).
 
     Returns
     -------
@@ -192,10 +192,6 @@ def project(
         rec = bool(reciprocal)
     else:
         raise TypeError(f"reciprocal must be None, True or False, got {reciprocal!r}")
-    if method == "lstsq" and not rec:
-        raise NotImplementedError("method='lstsq' fits reciprocal (symmetric) matrices only; "
-                                  "use method='quadrature' or 'montecarlo' with "
-                                  "reciprocal=False")
     deltas = tuple(getattr(brdf, "delta", ()) or ())
     if quantity == "auto":
         quantity = default_quantity(basis, brdf)
@@ -222,7 +218,7 @@ def project(
     elif method == "montecarlo":
         blocks_or_dense, info = _montecarlo(brdf, basis, quantity, iso, samples, seed, rec)
     else:
-        return _lstsq(brdf, basis, quantity, iso, samples, seed, t0)
+        return _lstsq(brdf, basis, quantity, iso, rec, samples, seed, t0)
 
     scalar = _is_scalar(brdf)
     if deltas:
@@ -901,15 +897,16 @@ def _montecarlo(brdf, basis, quantity, iso, samples, seed, rec=True):
     return mean, info
 
 
-def _lstsq(brdf, basis, quantity, iso, samples, seed, t0):
+def _lstsq(brdf, basis, quantity, iso, rec, samples, seed, t0):
     from .lstsq import fit, unknowns
 
-    n = 2 * unknowns(basis, iso).count if samples is None else nonneg_int(samples, "samples")
+    n = (2 * unknowns(basis, iso, reciprocal=rec).count if samples is None
+         else nonneg_int(samples, "samples"))
     wi, wo = _sobol_pairs(n, seed)
     n = wi.shape[0]
     v = _eval_pairs(brdf, wi, wo, int(brdf.channels))
     values = v[:, 0] if _is_scalar(brdf) else v
-    cm = fit(wi, wo, values, basis, quantity=quantity, isotropic=iso)
+    cm = fit(wi, wo, values, basis, quantity=quantity, isotropic=iso, reciprocal=rec)
     cm.info.update(seconds=time.perf_counter() - t0, source=repr(brdf), samples=n)
     return cm
 

@@ -149,6 +149,63 @@ def test_recovers_known_coefficients(basis, isotropic, quantity, rng, unit_vecto
     assert max(info["residual_rms"]) < 100 * EPS * np.max(np.abs(q))
 
 
+# -- non-reciprocal fits ------------------------------------------------------------------------
+def _random_general(rng, basis, *, isotropic, channels=3):
+    """A random non-symmetric CoefficientMatrix (isotropic: independent blocks B_m)."""
+    if isotropic:
+        sizes = [c.size for c in basis.azimuthal_blocks().cos]
+        blocks = [rng.normal(size=(channels, k, k)) for k in sizes]
+        return CoefficientMatrix.from_blocks(basis, blocks, "f", reciprocal=False)
+    return CoefficientMatrix(basis, rng.normal(size=(channels, basis.size, basis.size)), "f",
+                             isotropic=False, reciprocal=False)
+
+
+@pytest.mark.parametrize("basis", [HemiZernike(4), HemiHarmonics(5)])
+@pytest.mark.parametrize("isotropic", [True, False])
+def test_recovers_non_reciprocal_coefficients(basis, isotropic, rng, unit_vectors):
+    # independent reference: a known general matrix, evaluated by CoefficientMatrix.eval
+    truth = _random_general(rng, basis, isotropic=isotropic)
+    assert np.max(np.abs(truth.matrix - truth.matrix.swapaxes(-1, -2))) > 0.1
+    wi, wo = unit_vectors(900, upper=True), unit_vectors(900, upper=True)
+    values = truth.eval(wi, wo)
+    cm = fit(wi, wo, values, basis, isotropic=isotropic, reciprocal=False)
+    assert not cm.reciprocal and cm.is_isotropic == isotropic and cm.info["reciprocal"] is False
+    blocks = [c.size for c in basis.azimuthal_blocks().cos]
+    assert cm.info["unknowns"] == (sum(k * k for k in blocks) if isotropic else basis.size ** 2)
+    assert cm.info["rank"] == cm.info["unknowns"]
+    cond, scale = cm.info["condition_number"], np.max(np.abs(truth.matrix))
+    # noise-free: rounding amplified by at most cond, as for the reciprocal recovery above
+    np.testing.assert_allclose(cm.matrix, truth.matrix, rtol=0, atol=100 * cond * EPS * scale)
+    # a reciprocal fit of the same data cannot follow them: its held-out error stays at the
+    # antisymmetric part's share, far above the non-reciprocal fit's rounding
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        sym = fit(wi, wo, values, basis, isotropic=isotropic)
+    assert sym.reciprocal and sym.info["validation_l2"] > 0.1 > 1e3 * cm.info["validation_l2"]
+
+
+def test_non_reciprocal_layout_round_trip(rng, unit_vectors):
+    # to_unknowns and design_matrix agree with eval in the general layout, and the scaling
+    # keeps ||z|| the Frobenius norm of the dense M (rounding only)
+    zb = HemiZernike(3)
+    wi, wo = unit_vectors(40, upper=True), unit_vectors(40, upper=True)
+    for iso in (True, False):
+        cm = _random_general(rng, zb, isotropic=iso, channels=1)
+        z = to_unknowns(cm, isotropic=iso)
+        assert np.linalg.norm(z) == pytest.approx(np.linalg.norm(cm.matrix), rel=1e-14)
+        a = design_matrix(wi, wo, zb, isotropic=iso, reciprocal=False)
+        np.testing.assert_allclose(a @ z[:, 0], cm.eval(wi, wo)[:, 0], rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="cm is not reciprocal"):
+        to_unknowns(_random_general(rng, zb, isotropic=False), isotropic=False, reciprocal=True)
+    with pytest.raises(TypeError, match="reciprocal"):
+        fit(wi, wo, np.ones(40), zb, reciprocal="no")
+    # a reciprocal matrix in the general layout is the same function
+    sym = _random_matrix(rng, zb, isotropic=False)
+    a = design_matrix(wi, wo, zb, isotropic=False, reciprocal=False)
+    np.testing.assert_allclose(a @ to_unknowns(sym, isotropic=False, reciprocal=False),
+                               sym.eval(wi, wo), rtol=0, atol=1e-12)
+
+
 def test_scalar_values_give_scalar_matrix(rng, unit_vectors):
     zb = HemiZernike(2)
     truth = _random_matrix(rng, zb, isotropic=True)

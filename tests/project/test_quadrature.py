@@ -13,7 +13,13 @@ import warnings
 import numpy as np
 import pytest
 
-from basis import HemiHarmonics, HemiZernike, SphericalHarmonics, hemisphere_rule
+from basis import (
+    CoefficientMatrix,
+    HemiHarmonics,
+    HemiZernike,
+    SphericalHarmonics,
+    hemisphere_rule,
+)
 from project.brdf import BRDF, MirrorDelta, as_color
 from project.quadrature import _z_nodes, default_quantity, project, radial_table
 
@@ -597,5 +603,34 @@ def test_general_montecarlo_agrees_with_quadrature():
 def test_reciprocal_argument_errors():
     with pytest.raises(TypeError, match="reciprocal must be None, True or False, got 1"):
         project(Poly(0.0), HemiZernike(2), reciprocal=1)
-    with pytest.raises(NotImplementedError, match="method='lstsq' fits reciprocal"):
-        project(Poly(0.0), HemiZernike(2), method="lstsq", reciprocal=False)
+
+
+class GeneralMatrix(BRDF):
+    """q = b(w_i)^T M b(w_o) for a fixed non-symmetric M: in the span of the basis."""
+
+    channels, isotropic, reciprocal = 1, False, False
+
+    def __init__(self, cm):
+        self.cm = cm
+
+    def _eval(self, wi, wo):
+        return self.cm.eval(wi, wo)[:, None]
+
+
+def test_general_lstsq_recovers_a_matrix_in_the_span():
+    # independent reference: the known matrix itself; quadrature gives it too (exact rule)
+    zb = HemiZernike(3)
+    m = np.random.default_rng(5).normal(size=(zb.size, zb.size))
+    truth = CoefficientMatrix(zb, m, "f", isotropic=False, reciprocal=False)
+    got = project(GeneralMatrix(truth), zb, quantity="f", method="lstsq")
+    assert not got.reciprocal and got.info["reciprocal"] is False
+    # noise-free data in the span: rounding amplified by the condition number
+    tol = 100 * got.info["condition_number"] * np.finfo(float).eps * np.abs(m).max()
+    np.testing.assert_allclose(got.matrix, m, rtol=0, atol=tol)
+    # m's antisymmetric half is as large as its symmetric half: the symmetric fit predicts
+    # held-out pairs no better than zero, and says so
+    with pytest.warns(RuntimeWarning, match="predicts held-out samples"):
+        sym = project(GeneralMatrix(truth), zb, quantity="f", method="lstsq", reciprocal=True)
+    # a symmetric matrix cannot hold the antisymmetric half of m
+    assert sym.reciprocal and np.array_equal(sym.matrix, sym.matrix.T)
+    assert np.linalg.norm(sym.matrix - m) > 0.5 * np.linalg.norm(0.5 * (m - m.T))
