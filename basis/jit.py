@@ -13,6 +13,10 @@ from functools import partial
 
 import numba
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 
 #: Serial kernel: compiled once, cached on disk next to the module.
 njit = partial(numba.njit, cache=True, fastmath=False, nogil=True)
@@ -31,3 +35,214 @@ def writable(a: np.ndarray) -> np.ndarray:
     cheaper than a second compilation on a cold start, and keeps one cache entry per kernel.
     """
     return a if a.flags.writeable else a.copy()
+
+
+# -- eight-lane vector operations ---------------------------------------------------------------
+# numba runs LLVM's loop vectoriser but not its SLP vectoriser, and the loop vectoriser gives
+# up on short loops over scratch arrays it cannot prove disjoint; these intrinsics emit the
+# <8 x double> operations directly. Each works on flat float64 indices into C-contiguous
+# arrays (any number of dimensions), with no bounds checks: the callers own the index ranges.
+# Every product and difference is a separate IEEE operation in the order written (no fused
+# multiply-add), so the values are the bits of the scalar code with the same expression.
+
+#: Lanes of the vector operations below.
+LANES = 8
+
+_V8 = ir.VectorType(ir.DoubleType(), LANES)
+
+
+def _ptr(context, builder, aty, a, i):
+    data = context.make_array(aty)(context, builder, a).data
+    return builder.bitcast(builder.gep(data, [i]), _V8.as_pointer())
+
+
+def _load(context, builder, aty, a, i):
+    return builder.load(_ptr(context, builder, aty, a, i), align=8)
+
+
+def _store(context, builder, aty, a, i, v):
+    builder.store(v, _ptr(context, builder, aty, a, i), align=8)
+
+
+def _splat(builder, x):
+    v = builder.insert_element(ir.Constant(_V8, ir.Undefined), x, ir.Constant(ir.IntType(32), 0))
+    return builder.shuffle_vector(v, ir.Constant(_V8, ir.Undefined),
+                                  ir.Constant(ir.VectorType(ir.IntType(32), LANES), [0] * LANES))
+
+
+def _shuffle(builder, u, v, mask):
+    return builder.shuffle_vector(u, v, ir.Constant(ir.VectorType(ir.IntType(32), LANES), mask))
+
+
+@intrinsic
+def lane_recur(typingctx, dst, di, x, xi, p1, i1, p2, i2, a, b):
+    """dst[di:di+8] = (a * x[xi:xi+8]) * p1[i1:i1+8] - b * p2[i2:i2+8]."""
+    sig = types.void(dst, di, x, xi, p1, i1, p2, i2, a, b)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, xx, ixi, q1, ii1, q2, ii2, aa, bb = args
+        aa = context.cast(builder, aa, t[8], types.float64)
+        bb = context.cast(builder, bb, t[9], types.float64)
+        v = builder.fmul(builder.fmul(_splat(builder, aa), _load(context, builder, t[2], xx, ixi)),
+                         _load(context, builder, t[4], q1, ii1))
+        v = builder.fsub(v, builder.fmul(_splat(builder, bb),
+                                         _load(context, builder, t[6], q2, ii2)))
+        _store(context, builder, t[0], d, idi, v)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_scaled(typingctx, dst, di, a, x, xi, y, yi):
+    """dst[di:di+8] = (a * x[xi:xi+8]) * y[yi:yi+8]."""
+    sig = types.void(dst, di, a, x, xi, y, yi)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, aa, xx, ixi, yy, iyi = args
+        aa = context.cast(builder, aa, t[2], types.float64)
+        v = builder.fmul(builder.fmul(_splat(builder, aa), _load(context, builder, t[3], xx, ixi)),
+                         _load(context, builder, t[5], yy, iyi))
+        _store(context, builder, t[0], d, idi, v)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_mul(typingctx, dst, di, x, xi, y, yi):
+    """dst[di:di+8] = x[xi:xi+8] * y[yi:yi+8]."""
+    sig = types.void(dst, di, x, xi, y, yi)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, xx, ixi, yy, iyi = args
+        v = builder.fmul(_load(context, builder, t[2], xx, ixi),
+                         _load(context, builder, t[4], yy, iyi))
+        _store(context, builder, t[0], d, idi, v)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_transpose(typingctx, dst, di, stride, src, si):
+    """dst[di + j * stride + r] = src[si + 8 r + j] for r, j < 8: an 8 x 8 block transposed.
+
+    Moves eight values of each of eight lanes (stored lane-fastest) to eight output rows
+    ``stride`` apart, through registers.
+    """
+    sig = types.void(dst, di, stride, src, si)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, st, s, isi = args
+        ity = idi.type
+        rows = [_load(context, builder, t[3], s, builder.add(isi, ir.Constant(isi.type, 8 * r)))
+                for r in range(LANES)]
+        lo, hi = [0, 8, 2, 10, 4, 12, 6, 14], [1, 9, 3, 11, 5, 13, 7, 15]
+        a = []
+        for r in range(0, LANES, 2):
+            a += [_shuffle(builder, rows[r], rows[r + 1], lo),
+                  _shuffle(builder, rows[r], rows[r + 1], hi)]
+        lo2, hi2 = [0, 1, 8, 9, 4, 5, 12, 13], [2, 3, 10, 11, 6, 7, 14, 15]
+        bq = {}
+        for g in (0, 4):  # a[g..g+3]: lanes (even, odd) of rows g/2*... pairs
+            bq[(g, 0)] = _shuffle(builder, a[g], a[g + 2], lo2)      # lanes 0, 4
+            bq[(g, 2)] = _shuffle(builder, a[g], a[g + 2], hi2)      # lanes 2, 6
+            bq[(g, 1)] = _shuffle(builder, a[g + 1], a[g + 3], lo2)  # lanes 1, 5
+            bq[(g, 3)] = _shuffle(builder, a[g + 1], a[g + 3], hi2)  # lanes 3, 7
+        lo4, hi4 = [0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15]
+        for j in range(4):
+            for lane, mask in ((j, lo4), (j + 4, hi4)):
+                v = _shuffle(builder, bq[(0, j)], bq[(4, j)], mask)
+                off = builder.add(idi, builder.mul(st, ir.Constant(ity, lane)))
+                _store(context, builder, t[0], d, off, v)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+def _fcall(builder, name, *vals):
+    fnty = ir.FunctionType(_V8, [_V8] * len(vals))
+    fn = cgutils.get_or_insert_function(builder.module, fnty, f"{name}.v{LANES}f64")
+    return builder.call(fn, list(vals))
+
+
+@intrinsic
+def lane_unit(typingctx, dirs, i0, zz, sn, c1, s1, smin):
+    """Renormalise directions i0..i0+7 of ``dirs`` (n, 3) and store their polar coordinates.
+
+    Stores, lane by lane, z, sin(theta) and the unit azimuth (cos phi, sin phi) (1, 0 at the
+    poles) into the first eight entries of zz, sn, c1, s1: the operations of the scalar
+    routine, lane-wise (each square root and quotient correctly rounded, so the same bits).
+    Returns True when some lane has 0 < sin(theta) < smin.
+    """
+    sig = types.boolean(dirs, i0, zz, sn, c1, s1, smin)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        dd, ii0, z_, s_, c_, si_, sm = args
+        data = context.make_array(t[0])(context, builder, dd).data
+        ity = ii0.type
+        base = builder.mul(ii0, ir.Constant(ity, 3))
+        undef = ir.Constant(_V8, ir.Undefined)
+        comp = []
+        for c in range(3):
+            v = undef
+            for j in range(LANES):
+                p = builder.gep(data, [builder.add(base, ir.Constant(ity, 3 * j + c))])
+                v = builder.insert_element(v, builder.load(p), ir.Constant(ir.IntType(32), j))
+            comp.append(v)
+        x, y, z = comp
+        r = _fcall(builder, "llvm.sqrt", builder.fadd(builder.fadd(builder.fmul(x, x),
+                                                                   builder.fmul(y, y)),
+                                                      builder.fmul(z, z)))
+        x, y, z = builder.fdiv(x, r), builder.fdiv(y, r), builder.fdiv(z, r)
+        s = _fcall(builder, "llvm.sqrt", builder.fadd(builder.fmul(x, x), builder.fmul(y, y)))
+        zero = ir.Constant(_V8, [0.0] * LANES)
+        pos = builder.fcmp_ordered(">", s, zero)
+        cv = builder.select(pos, builder.fdiv(x, s), ir.Constant(_V8, [1.0] * LANES))
+        sv = builder.select(pos, builder.fdiv(y, s), zero)
+        sm = context.cast(builder, sm, t[6], types.float64)
+        low = builder.and_(pos, builder.fcmp_ordered("<", s, _splat(builder, sm)))
+        zi = ir.Constant(ity, 0)
+        for arr, aty, v in ((z_, t[2], z), (s_, t[3], s), (c_, t[4], cv), (si_, t[5], sv)):
+            _store(context, builder, aty, arr, zi, v)
+        bits = builder.bitcast(low, ir.IntType(LANES))
+        return builder.icmp_unsigned("!=", bits, ir.Constant(ir.IntType(LANES), 0))
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_rotate(typingctx, cc, ss, seed, r, c1, s1, dm, sn):
+    """One step of the azimuthal and sectoral recurrences, lane-wise, from row r - 8 to row r.
+
+    cc[r:r+8] = cc' c1 - ss' s1, ss[r:r+8] = ss' c1 + cc' s1, seed[r:r+8] = seed' (dm sn),
+    where ' marks the entries r - 8 .. r - 1 and c1, s1, sn their first eight entries.
+    """
+    sig = types.void(cc, ss, seed, r, c1, s1, dm, sn)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        ca, sa, sd, rr, c1a, s1a, dmv, sna = args
+        zi = ir.Constant(rr.type, 0)
+        rp = builder.sub(rr, ir.Constant(rr.type, LANES))
+        cm = _load(context, builder, t[0], ca, rp)
+        sm = _load(context, builder, t[1], sa, rp)
+        cv = _load(context, builder, t[4], c1a, zi)
+        sv = _load(context, builder, t[5], s1a, zi)
+        _store(context, builder, t[0], ca, rr,
+               builder.fsub(builder.fmul(cm, cv), builder.fmul(sm, sv)))
+        _store(context, builder, t[1], sa, rr,
+               builder.fadd(builder.fmul(sm, cv), builder.fmul(cm, sv)))
+        dmv = context.cast(builder, dmv, t[6], types.float64)
+        f = builder.fmul(_splat(builder, dmv), _load(context, builder, t[7], sna, zi))
+        _store(context, builder, t[2], sd, rr,
+               builder.fmul(_load(context, builder, t[2], sd, rp), f))
+        return context.get_dummy_value()
+
+    return sig, codegen

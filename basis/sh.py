@@ -11,7 +11,19 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis, triangular_offsets
-from .jit import njit, pjit, prange, writable
+from .jit import (
+    LANES,
+    lane_mul,
+    lane_recur,
+    lane_rotate,
+    lane_scaled,
+    lane_transpose,
+    lane_unit,
+    njit,
+    pjit,
+    prange,
+    writable,
+)
 from .quadrature import HemisphereRule, hemisphere_rule, sphere_rule
 from .validation import choice
 
@@ -281,11 +293,9 @@ def _pos(l, m, parity):
     return (l * (l + 1)) // 2 + (m + l) // 2
 
 
-#: Points per block of the lane kernel: the recurrence runs over a block's points at once.
-_LANES = 8
 #: Directions per parallel task (scratch arrays are allocated once per task); even, and a
-#: multiple of _LANES.
-_TASK = 32 * _LANES
+#: multiple of LANES.
+_TASK = 32 * LANES
 #: Below this degree the full basis takes _sh_pairs (two directions at a time, rows written
 #: straight to the output), from it _sh_lanes (measured on two cores: pairs faster at
 #: lmax = 8, lanes faster at 12 and above).
@@ -385,116 +395,94 @@ def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
 
 @njit
 def _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
-    # Directions lo..hi-1 in blocks of _LANES that run the recurrence together, row l by row
-    # l: the innermost loops go over the lanes with a fixed trip count, and the chains of
-    # different lanes overlap. ra, rb: a, b by row (_row_tables). Every index is unsigned or
-    # a loop counter from 0: numba wraps negative signed indices around, and that test on
-    # every access costs more than the arithmetic. Scratch is allocated here, so that its
-    # shapes are known to the compiler.
-    # A block's values go to buf, the full basis in flat order for each lane (the parity
-    # classes of HemiHarmonics are picked by cols when copied out).
+    # Directions lo..hi-1 in blocks of LANES that run the recurrence together, row l by row
+    # l, each step one <8 x double> operation (basis.jit): ra, rb are a, b by row
+    # (_row_tables). Scratch is flat and lane-fastest (entry r of lane j at r * LANES + j);
+    # buf holds the full basis in flat order for each lane. For the full basis every row's
+    # finished columns go out in 8 x 8 transposed tiles while they are still in L1, so the
+    # buffer is read once, from cache, and the output rows are written eight values at a
+    # time; one parity class (HemiHarmonics) is picked by cols after the block.
     # A block with a direction needing the carried exponent (0 < sin(theta) < smin), and a
     # last partial block, take _sh_point; the others give its bits (same operations in the
-    # same order; an m = 0 value is stored as p where _sh_point stores p * 1.0).
-    u0 = np.uint64(0)
-    u1 = np.uint64(1)
-    u2 = np.uint64(2)
-    ul = np.uint64(lmax)
+    # same order; an m = 0 value is stored as p * 1.0, as _sh_point stores it). out must be
+    # C-contiguous: the tiles address it by flat index.
     sqrt2 = np.sqrt(2.0)
     p00 = norm / np.sqrt(4.0 * np.pi)
-    zz = np.empty(_LANES)
-    sn = np.empty(_LANES)
-    c1 = np.empty(_LANES)
-    s1 = np.empty(_LANES)
-    cc = np.empty((lmax + 1, _LANES))
-    ss = np.empty((lmax + 1, _LANES))
-    seed = np.empty((lmax + 1, _LANES))
-    pa = np.empty((lmax + 1, _LANES))
-    pb = np.empty((lmax + 1, _LANES))
-    buf = np.empty((_LANES, (lmax + 1) * (lmax + 1)))
-    nfull = (hi - lo) // _LANES
-    for i in range(lo + nfull * _LANES, hi):
+    nl = lmax + 1
+    kk = nl * nl
+    size = out.shape[1]
+    zz = np.empty(LANES)
+    sn = np.empty(LANES)
+    c1 = np.empty(LANES)
+    s1 = np.empty(LANES)
+    ones = np.ones(LANES)
+    cc = np.empty(nl * LANES)
+    ss = np.empty(nl * LANES)
+    seed = np.empty(nl * LANES)
+    pa = np.empty(nl * LANES)
+    pb = np.empty(nl * LANES)
+    buf = np.empty(kk * LANES)
+    nfull = (hi - lo) // LANES
+    for i in range(lo + nfull * LANES, hi):
         _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
     for blk in range(nfull):
-        i0 = lo + blk * _LANES
-        slow = False
-        for j in range(_LANES):
-            z, s, cj, sj = _unit(dirs, i0 + j)
-            slow |= 0.0 < s < smin
-            zz[j] = z
-            sn[j] = s
-            c1[j] = cj
-            s1[j] = sj
-        if slow:
-            for j in range(_LANES):
+        i0 = lo + blk * LANES
+        if lane_unit(dirs, i0, zz, sn, c1, s1, smin):
+            for j in range(LANES):
                 _sh_point(dirs, i0 + j, lmax, parity, norm, a, b, d, off, out[i0 + j])
             continue
-        for j in range(_LANES):
-            cc[0, j] = 1.0
-            ss[0, j] = 0.0
-            seed[0, j] = p00
-            pa[0, j] = p00
-            buf[j, 0] = p00
+        for j in range(LANES):
+            cc[j] = 1.0
+            ss[j] = 0.0
+            seed[j] = p00
+            pa[j] = p00
+            buf[j] = p00
             if lmax > 0:
-                cc[1, j] = sqrt2 * c1[j] - 0.0 * s1[j]
-                ss[1, j] = 0.0 * c1[j] + sqrt2 * s1[j]
-                seed[1, j] = p00 * (d[1] * sn[j])
-        for m in range(u2, ul + u1):
-            dm = d[m]
-            for j in range(_LANES):
-                cm = cc[m - u1, j]
-                sm = ss[m - u1, j]
-                cc[m, j] = cm * c1[j] - sm * s1[j]
-                ss[m, j] = sm * c1[j] + cm * s1[j]
-                seed[m, j] = seed[m - u1, j] * (dm * sn[j])
+                cc[LANES + j] = sqrt2 * c1[j] - 0.0 * s1[j]
+                ss[LANES + j] = 0.0 * c1[j] + sqrt2 * s1[j]
+                seed[LANES + j] = p00 * (d[1] * sn[j])
+        for m in range(2, nl):
+            lane_rotate(cc, ss, seed, m * LANES, c1, s1, d[m], sn)
         p1 = pa
         p2 = pb
-        for l in range(u1, ul + u1):
-            o = (l * (l + u1)) // u2
+        done = 0  # columns of the block already in out
+        for l in range(1, nl):
+            o = (l * (l + 1)) // 2
             k0 = l * l + l
-            if l >= u2:
-                am = ra[o]
-                bm = rb[o]
-                for j in range(_LANES):
-                    v = am * zz[j] * p1[u0, j] - bm * p2[u0, j]
-                    p2[u0, j] = v
-                    buf[j, k0] = v
-                for m in range(u1, l - u1):
-                    am = ra[o + m]
-                    bm = rb[o + m]
-                    for j in range(_LANES):
-                        v = am * zz[j] * p1[m, j] - bm * p2[m, j]
-                        p2[m, j] = v
-                        buf[j, k0 + m] = v * cc[m, j]
-                        buf[j, k0 - m] = v * ss[m, j]
-            am = ra[o + l - u1]
-            for j in range(_LANES):
-                v = am * zz[j] * seed[l - u1, j]
-                p2[l - u1, j] = v
-                if l == u1:
-                    buf[j, k0] = v
-                else:
-                    buf[j, k0 + l - u1] = v * cc[l - u1, j]
-                    buf[j, k0 - l + u1] = v * ss[l - u1, j]
-            for j in range(_LANES):
-                v = seed[l, j]
-                p2[l, j] = v
-                buf[j, k0 + l] = v * cc[l, j]
-                buf[j, k0 - l] = v * ss[l, j]
+            if l >= 2:
+                lane_recur(p2, 0, zz, 0, p1, 0, p2, 0, ra[o], rb[o])
+                lane_mul(buf, k0 * LANES, p2, 0, ones, 0)
+                for m in range(1, l - 1):
+                    r = m * LANES
+                    lane_recur(p2, r, zz, 0, p1, r, p2, r, ra[o + m], rb[o + m])
+                    lane_mul(buf, (k0 + m) * LANES, p2, r, cc, r)
+                    lane_mul(buf, (k0 - m) * LANES, p2, r, ss, r)
+            r = (l - 1) * LANES
+            lane_scaled(p2, r, ra[o + l - 1], zz, 0, seed, r)
+            if l == 1:
+                lane_mul(buf, k0 * LANES, p2, r, ones, 0)
+            else:
+                lane_mul(buf, (k0 + l - 1) * LANES, p2, r, cc, r)
+                lane_mul(buf, (k0 - l + 1) * LANES, p2, r, ss, r)
+            r = l * LANES
+            lane_mul(p2, r, seed, r, ones, 0)
+            lane_mul(buf, (k0 + l) * LANES, seed, r, cc, r)
+            lane_mul(buf, (k0 - l) * LANES, seed, r, ss, r)
             t = p1
             p1 = p2
             p2 = t
-        # rows i0..i0+_LANES-1 of out are contiguous: one sequential copy, where writing the
-        # values in the order computed would scatter them over _LANES rows. One parity class
-        # (HemiHarmonics) takes its columns of the full basis.
+            if parity == 2:
+                while done + LANES <= k0 + l + 1:
+                    lane_transpose(out, i0 * size + done, size, buf, done * LANES)
+                    done += LANES
         if parity == 2:
-            for j in range(_LANES):
-                for k in range(out.shape[1]):
-                    out[i0 + j, k] = buf[j, k]
+            for j in range(LANES):
+                for k in range(done, kk):
+                    out[i0 + j, k] = buf[k * LANES + j]
         else:
-            for j in range(_LANES):
-                for k in range(out.shape[1]):
-                    out[i0 + j, k] = buf[j, cols[k]]
+            for j in range(LANES):
+                for k in range(size):
+                    out[i0 + j, k] = buf[cols[k] * LANES + j]
 
 
 @njit
