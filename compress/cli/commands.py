@@ -1121,6 +1121,10 @@ def _parser() -> argparse.ArgumentParser:
 
     add_benchmark(sub, fmt, _add_progress, _progress, _dask_client)
 
+    from .render import add_parser as add_render
+
+    add_render(sub, fmt, _add_progress, _progress)
+
     i = sub.add_parser("info", formatter_class=fmt,
                        help="versions, threads, limits, models; or what FILE holds",
                        description="Without FILE: versions, threads, basis limits, basis kinds "
