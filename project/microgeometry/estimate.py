@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from basis import Basis, CoefficientMatrix
+from basis import Basis, CoefficientMatrix, validation
 from basis.jit import pjit, prange
 from basis.validation import check_bytes, dask_client
 
@@ -231,8 +231,9 @@ def simulate(
         (Westin's N_p; b(U) is evaluated once for all of them).
     chunk : int, optional
         Incident directions per chunk (one batch of the batch-means error estimate, and the
-        unit of checkpointing). Default: about 32768 rays per chunk (fewer, larger
-        chunks amortise the start of the parallel kernels).
+        unit of checkpointing, and of the work of one thread: each of the numba threads
+        traces and accumulates whole chunks, so use at least a few chunks per thread).
+        Default: about 32768 rays per chunk.
     checkpoint : path, optional
         HDF5 file to which the accumulators are saved every ``checkpoint_interval`` seconds,
         at the end, and when the run is interrupted (KeyboardInterrupt, SIGINT, SIGTERM,
@@ -302,8 +303,9 @@ def simulate(
     bits; a task that Dask runs again after its worker died returns the same values and is
     counted once. The checkpoint (written by this process) holds the
     chunks folded so far, and can be resumed with or without a client. A worker process traces
-    one chunk at a time on numba threads that take its share of the host's cores (the cores
-    over the worker processes on that host), so one Dask thread per worker is enough
+    one task at a time, its chunks spread over numba threads that take its share of the
+    host's cores (the cores over the worker processes on that host), so one Dask thread per
+    worker is enough
     (``LocalCluster(n_workers=N, threads_per_worker=1)``). Workers need
     scatmodes installed and, to avoid compiling the kernels in every process, a writable
     ``NUMBA_CACHE_DIR``.
@@ -337,10 +339,14 @@ def simulate(
     chunk = _positive_int(chunk, "chunk")
     if not checkpoint_interval > 0:
         raise ValueError(f"checkpoint_interval must be > 0, got {checkpoint_interval!r}")
-    check_bytes(8.0 * (_MATRIX_COPIES * k * k + chunk * targets * (k + _PER_RAY)
-                       + chunk * (2 * k + 4)),
+    per_chunk = chunk * targets * (k + _PER_RAY) + chunk * (2 * k + 4)
+    check_bytes(8.0 * (_MATRIX_COPIES * k * k + per_chunk),
                 f"simulate with {basis!r} ({k} functions: {_MATRIX_COPIES} ({k}, {k}) "
                 f"accumulator matrices) and {chunk * targets} rays per chunk")
+    # chunks traced at once in this process (see _chunk_deltas): one per numba thread, as
+    # many as memory allows; each holds its work arrays, its (K, K) result and two queued
+    lanes = max(1, min(_threads(), int((validation.MAX_BYTES / 8.0 - _MATRIX_COPIES * k * k)
+                                       // (per_chunk + 3 * k * k))))
     meta = {"surface": surface.fingerprint(), "surface_repr": repr(surface),
             "basis": repr(basis), "incident": incident, "targets": targets, "chunk": chunk,
             "seeds": [int(seed)]}
@@ -370,7 +376,7 @@ def simulate(
         state = (acc, done)
         workers: set[str] = set()
         steps = _local_steps(surface, basis, seed_u, state, ndirs, chunk, targets, cosine,
-                             bar) if client is None else \
+                             bar, lanes) if client is None else \
             _distributed_steps(client, surface, basis, seed_u, state, ndirs, chunk, targets,
                                cosine, bar, workers)
         last_save = time.perf_counter()
@@ -403,24 +409,123 @@ def simulate(
 
 def _local_steps(surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
                  state: tuple[dict[str, Any], int], ndirs: int, chunk: int, per: int,
-                 cosine: bool, bar: Any) -> Iterator[tuple[dict[str, Any], int]]:
+                 cosine: bool, bar: Any, lanes: int) -> Iterator[tuple[dict[str, Any], int]]:
     """Trace the chunks in this process; yield (accumulators, directions done) after each."""
     acc, done = state
-    while done < ndirs:
-        t0 = time.perf_counter()
-        nd = min(chunk, ndirs - done)
-        new = _copy(acc)
-        _chunk(surface, basis, seed, done, nd, per, cosine, new)
-        new["seconds"] += time.perf_counter() - t0
-        acc, done = new, done + nd
-        if bar is not None:
-            bar.update(nd * per)
-        yield acc, done
+    todo = ((a, min(chunk, ndirs - a)) for a in range(done, ndirs, chunk))
+    with _Lanes(surface, basis, seed, todo, per, cosine, lanes) as ahead:
+        while done < ndirs:
+            t0 = time.perf_counter()
+            nd = min(chunk, ndirs - done)
+            new = _copy(acc)
+            _chunk(surface, basis, seed, done, nd, per, cosine, new, ahead)
+            new["seconds"] += time.perf_counter() - t0
+            acc, done = new, done + nd
+            if bar is not None:
+                bar.update(nd * per)
+            yield acc, done
 
 
-#: a worker process traces one chunk at a time: numba's default threading layer aborts the
-#: process when two threads launch parallel kernels at once, and the chunk's own numba
-#: threads already share the cores
+def _threads() -> int:
+    import numba
+
+    return int(numba.get_num_threads())
+
+
+def _concurrent_launches() -> bool:
+    """Whether numba's threading layer lets several threads launch parallel kernels at once.
+
+    The OpenMP and TBB layers do; the workqueue layer aborts the process. Which layer numba
+    chose is known only once a parallel kernel has run in this process.
+    """
+    import numba
+
+    try:
+        return numba.threading_layer() in ("omp", "tbb")
+    except ValueError:  # no parallel kernel has run yet
+        return False
+
+
+def _one_thread() -> None:
+    import numba
+
+    numba.set_num_threads(1)  # per thread: the lane's own kernels run serially
+
+
+class _Lanes:
+    """Chunks computed ahead, in order, each by one thread ("lane") on one numba thread.
+
+    Splitting every chunk over all threads ends each of its five parallel loops (tracing,
+    the two basis evaluations, the two accumulation loops) with a wait for the slowest
+    thread: on a machine shared with other jobs, a thread that loses its core for a time
+    slice stalls all of them, measured at up to half the run's time for a million rays.
+    Here ``lanes`` threads each trace and accumulate whole chunks and take the next one as
+    soon as they finish, waiting for nobody; :meth:`delta` hands the chunks' results over
+    in order, keeping at most ``2 * lanes`` queued. A chunk's values do not depend on how
+    many threads computed it (per-ray random streams, a fixed summation order), so every
+    lane count gives the same bits.
+
+    ``todo`` yields the (start, directions) of the chunks that :meth:`delta` will be asked
+    for, in that order. With one lane, one chunk, or a threading layer that forbids
+    concurrent launches, every chunk is computed when asked for, on all numba threads. The
+    first chunk always is: only then does numba know its threading layer.
+    """
+
+    def __init__(self, surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
+                 todo: Iterator[tuple[int, int]], per: int, cosine: bool, lanes: int) -> None:
+        self._args = (surface, basis, seed)
+        self._per = per
+        self._cosine = cosine
+        self._todo = todo
+        self._lanes = lanes
+        self._pool: Any = None
+        self._queued: dict[int, Any] = {}  # start -> future of its _chunk_delta
+
+    def __enter__(self) -> _Lanes:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def delta(self, start: int, nd: int) -> dict[str, Any]:
+        """Return :func:`_chunk_delta` of directions start .. start + nd - 1."""
+        fut = self._queued.pop(start, None)
+        if fut is not None:
+            self._fill()
+            return fut.result()
+        out = _chunk_delta(*self._args, start, nd, self._per, self._cosine)
+        if self._pool is None and self._lanes > 1 and _concurrent_launches():
+            for a, _ in self._todo:  # the chunks up to this one are done
+                if a == start:
+                    break
+            from concurrent.futures import ThreadPoolExecutor
+
+            self._pool = ThreadPoolExecutor(self._lanes, thread_name_prefix="scatmodes-lane",
+                                            initializer=_one_thread)
+        self._fill()
+        return out
+
+    def _fill(self) -> None:
+        while self._pool is not None and len(self._queued) < 2 * self._lanes:
+            nxt = next(self._todo, None)
+            if nxt is None:
+                return
+            self._queued[nxt[0]] = self._pool.submit(_chunk_delta, *self._args, *nxt,
+                                                     self._per, self._cosine)
+
+    def close(self) -> None:
+        """Start no other chunk and wait for the running ones (at most a chunk's time)."""
+        if self._pool is not None:
+            for fut in self._queued.values():
+                fut.cancel()
+            self._queued.clear()
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+
+#: a worker process traces one task at a time: numba's workqueue threading layer aborts the
+#: process when two threads launch parallel kernels at once, and the task's own lanes
+#: (:class:`_Lanes`) already share the cores
 _WORKER_LOCK = threading.Lock()
 
 
@@ -448,8 +553,8 @@ def _remote_chunks(surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
     threads = max(1, min(numba.config.NUMBA_NUM_THREADS, _cpus() // processes.get(host, 1)))
     with _WORKER_LOCK:
         numba.set_num_threads(threads)
-        deltas = [_chunk_delta(surface, basis, seed, start, nd, per, cosine)
-                  for start, nd in chunks]
+        with _Lanes(surface, basis, seed, iter(chunks), per, cosine, threads) as ahead:
+            deltas = [ahead.delta(start, nd) for start, nd in chunks]
     return address, deltas
 
 
@@ -599,9 +704,13 @@ def _empty(k: int) -> dict[str, Any]:
 
 
 def _chunk(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: int, nd: int,
-           per: int, cosine: bool, acc: dict[str, Any]) -> None:
-    """Trace directions start .. start + nd - 1 (``per`` rays each) and accumulate."""
-    _fold(acc, _chunk_delta(surface, basis, seed, start, nd, per, cosine))
+           per: int, cosine: bool, acc: dict[str, Any], ahead: _Lanes | None = None) -> None:
+    """Trace directions start .. start + nd - 1 (``per`` rays each) and accumulate.
+
+    ``ahead``, if given, may already be computing this chunk on another thread.
+    """
+    _fold(acc, ahead.delta(start, nd) if ahead is not None else
+          _chunk_delta(surface, basis, seed, start, nd, per, cosine))
 
 
 def _chunk_delta(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, start: int,

@@ -29,6 +29,7 @@ from ._paths import (
     MAX_STEPS,
     ROULETTE,
     _alloc,
+    _coherent_order,
     _intersect,
     _launch,
     _next_origin,
@@ -148,7 +149,9 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
     ior = params[0]
     kext = params[1]
     alb = params[2]
-    for r in prange(dirs.shape[0] * per):
+    order = _coherent_order(seed, start, dirs.shape[0] * per, nx, ny)
+    for i in prange(order.shape[0]):
+        r = order[i]
         ox, oy, oz, dx, dy, dz, s = _launch(dirs, r // per, zs, lx, ly,
                                             _stream(seed, start + np.uint64(r), _TAG_RAY))
         w = 1.0

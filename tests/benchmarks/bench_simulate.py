@@ -32,8 +32,11 @@ run once untimed (JIT compile or cache load, BVH build) and then ``--repeats`` t
 height-field rows and ``mitsuba 1 batch``: ``--repeats`` + 2 times); the best time is
 reported. Both run on ``--threads`` threads (numba.set_num_threads and
 ``dr.set_thread_count``). The machine may be shared: compare rows of one
-run. Finally it prints the time our simulate needs to reach Q <= ``--qtarget`` at
-HemiZernike(12) (rays doubled from 2^16 until Q meets the target).
+run. Then ``--runs`` runs (default 3) of ``ours simulate`` against ``mitsuba 1 batch``,
+back to back (best of ``--repeats`` each), one row and ratio per run: on a shared machine
+the ratio of a single run is what can be relied on, so every run is shown. Finally it
+prints the time our simulate needs to reach Q <= ``--qtarget`` at HemiZernike(12) (rays
+doubled from 2^16 until Q meets the target).
 
 Scenes (``--scenes``, issue 6): the brushed-metal (aluminium cylinders on a plane) and velvet
 (transparent capped fibres over a dark base) specimens of :mod:`project.microgeometry`,
@@ -45,8 +48,8 @@ as the materials say, Mitsuba's are mirror bounces, so the number of ray casts p
 ray differs: those rows compare casts/s (first-hit queries per second, counting every query
 including the final miss) and print the ratio of casts/s.
 
-Run: ``python tests/benchmarks/bench_simulate.py [--size 512] [--rays 1000000] [--quick]
-[--scenes | --no-heightfield]``.
+Run: ``python tests/benchmarks/bench_simulate.py [--size 512] [--rays 1000000] [--runs 3]
+[--quick] [--scenes | --no-heightfield]``.
 mitsuba is optional (``pip install "scatmodes[bench]"``); without it only our rows print.
 """
 
@@ -68,6 +71,8 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     p.add_argument("--targets", type=int, default=8, help="rays per incident direction")
     p.add_argument("--order", type=int, default=12, help="HemiZernike order for simulate")
     p.add_argument("--repeats", type=int, default=3, help="timed runs; the best is reported")
+    p.add_argument("--runs", type=int, default=3,
+                   help="runs of the ours-vs-Mitsuba comparison printed one by one")
     p.add_argument("--threads", type=int, default=os.cpu_count() or 1, help="threads")
     p.add_argument("--qtarget", type=float, default=1e-3, help="Q target at HemiZernike(12)")
     p.add_argument("--scenes", action=argparse.BooleanOptionalAction, default=True,
@@ -79,7 +84,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
     args = p.parse_args(argv)
     if args.quick:
         args.size, args.rays, args.repeats = 128, 100_000, 1
-    if min(args.size, args.rays, args.targets, args.repeats, args.threads) < 1:
+    if min(args.size, args.rays, args.targets, args.repeats, args.threads, args.runs) < 1:
         p.error("all sizes must be >= 1")
     return args
 
@@ -397,6 +402,33 @@ def main(argv: list[str] | None = None) -> int:
     return 0
 
 
+def runs_table(runs: int, repeats: int, ours, casts_ours: int, mitsuba, rays: int) -> None:
+    """Print ours simulate vs ``mitsuba 1 batch`` for each of ``runs`` runs, one row each.
+
+    A run times our simulate (best of ``repeats``) and then Mitsuba's one batch (best of
+    ``repeats``), back to back, so that both see the same load; the spread of the ratio
+    over the runs shows what one run can give on a shared machine."""
+    print(f"# {runs} runs, each: ours simulate then mitsuba 1 batch (best of {repeats} each)")
+    print(f"{'run':>4} {'ours s':>8} {'ours casts/s':>13} {'mitsuba s':>10} "
+          f"{'mitsuba casts/s':>16} {'ratio':>6}")
+    ratios = []
+    for i in range(runs):
+        t_ours = min(_timed(ours) for _ in range(repeats))
+        t_mi = min(mitsuba() for _ in range(repeats))
+        ratio = (casts_ours / t_ours) / (rays / t_mi)
+        ratios.append(ratio)
+        print(f"{i + 1:>4} {t_ours:8.3f} {casts_ours / t_ours:13.4g} {t_mi:10.3f} "
+              f"{rays / t_mi:16.4g} {ratio:6.2f}")
+    print(f"# ratio over the {runs} runs: min {min(ratios):.2f}, median "
+          f"{float(np.median(ratios)):.2f}, max {max(ratios):.2f}")
+
+
+def _timed(fn) -> float:
+    t0 = time.perf_counter()
+    fn()
+    return time.perf_counter() - t0
+
+
 def heightfield_rows(args: argparse.Namespace) -> None:
     from basis import HemiZernike
     from project.microgeometry import GaussianSurface, simulate
@@ -462,6 +494,8 @@ def heightfield_rows(args: argparse.Namespace) -> None:
     r = sim["r"]
     print(f"# simulate: Q = {r.asymmetry:.3g}, reflected = {r.energy['reflected']:.6f}, "
           f"single-bounce fraction = {r.single_scatter:.4f}")
+    if run is not None:
+        runs_table(args.runs, args.repeats, ours_sim, casts_ours, run.primary, rays)
 
     n = 2**16
     zb = HemiZernike(12)

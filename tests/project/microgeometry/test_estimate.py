@@ -99,6 +99,33 @@ def test_deterministic_across_threads_and_chunks(rough):
 
 
 
+def test_lanes_give_the_bits_of_one_thread(rough, monkeypatch):
+    # reference: the same run on one numba thread, where every chunk is traced and
+    # accumulated in the calling thread; with two threads the chunks run on two lanes
+    # (worker threads, see estimate._Lanes) and must give the same bits, not merely close ones
+    basis = HemiZernike(4)
+    old = numba.get_num_threads()
+    try:
+        numba.set_num_threads(1)
+        ref = simulate(rough, basis, rays=24000, seed=5, chunk=150)
+    finally:
+        numba.set_num_threads(old)
+    if old < 2 or not est_mod._concurrent_launches():
+        pytest.skip("needs two numba threads and a threading layer that allows lanes")
+    real, where = est_mod._chunk_delta, []
+
+    def spy(*args):
+        where.append(threading.current_thread().name)
+        return real(*args)
+
+    monkeypatch.setattr(est_mod, "_chunk_delta", spy)
+    res = simulate(rough, basis, rays=24000, seed=5, chunk=150)
+    assert sum(name.startswith("scatmodes-lane") for name in where) == len(where) - 1 > 0
+    for key in ("sum", "s2", "ns", "bounces"):
+        assert np.array_equal(res._acc[key], ref._acc[key]), key
+    assert not est_mod._SCRATCH._bufs  # the lanes' work arrays are released too
+
+
 def test_reused_work_arrays_carry_nothing_between_runs(rough):
     # the chunks' work arrays are reused from chunk to chunk (20000 rays in chunks of 300
     # directions: the last chunk is smaller) until the run releases them; stale arrays of
