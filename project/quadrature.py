@@ -34,9 +34,13 @@ projection of the reciprocal part (q + q^T) / 2, which is also the closest recip
 representation in L2.
 
 The node counts start from the order; the z and azimuth rules are doubled separately, each
-time the one whose last doubling changed the result more, until the sum of the two changes
+time the one whose last doubling changed the result more, until the sum of the changes
 is below the tolerance. That sum is returned as the error estimate (a conservative one, since
-the finer result is returned).
+the finer result is returned). The azimuth rules are nested (the rule with twice the
+intervals holds every node of the other), so for isotropic BRDFs doubling the azimuths
+evaluates only the new nodes, and every rule carries its own azimuth estimate for free, the
+change from the rule made of its even nodes; the diagonal rule doubles its nodes along and
+across the ridge separately.
 """
 
 from __future__ import annotations
@@ -49,8 +53,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 from scipy.special import roots_legendre
+from threadpoolctl import threadpool_limits
 
 from basis import Basis, CoefficientMatrix
+from basis.jit import pjit, prange
 from basis.validation import check_bytes, choice, nonneg_int
 
 __all__ = ["default_quantity", "project", "radial_table"]
@@ -323,9 +329,11 @@ def _is_scalar(brdf: Any) -> bool:
     return v.ndim == 0
 
 
-def _eval_pairs(brdf: Any, wi: NDArray, wo: NDArray, channels: int) -> NDArray[np.float64]:
-    """Evaluate brdf at (n, 3) pairs as (n, channels), checked finite."""
-    v = np.asarray(brdf.eval(wi, wo), dtype=np.float64).reshape(wi.shape[0], channels)
+def _eval_pairs(brdf: Any, wi: NDArray, wo: NDArray, channels: int,
+                evaluate: Any = None) -> NDArray[np.float64]:
+    """Evaluate brdf (by ``evaluate``, default its ``eval``) at (n, 3) pairs, checked finite."""
+    v = np.asarray((evaluate or brdf.eval)(wi, wo), dtype=np.float64).reshape(wi.shape[0],
+                                                                             channels)
     if not np.all(np.isfinite(v)):
         raise ValueError(f"{brdf!r} returned non-finite values at {int(np.sum(~np.isfinite(v)))}"
                          " sample pairs; the model is not defined everywhere on the hemisphere")
@@ -407,10 +415,11 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluatio
                           converged=err <= tol * scale, norm2=norm2)
     max_nodes = nonneg_int(max_nodes, "max_nodes")
     budget = nonneg_int(max_evaluations, "max_evaluations")
+    if iso:
+        return _iso_quadrature(brdf, basis, quantity, tol, max_nodes, budget, fold, signs == 2)
 
     def cost(nz: int, nphi: int) -> int:
-        return (nz * nz * (nphi // 2 + 1) // (2 if fold else 1) * signs if iso
-                else nz * nz * max(4 * order + 2, nphi // 2) * (nphi + 2))
+        return nz * nz * max(4 * order + 2, nphi // 2) * (nphi + 2)
 
     # z and phi converge at different rates (a lobe near the pole needs few Gauss nodes, the
     # near-horizon corner wi ~ -wo many azimuths), so each is doubled on its own: the change
@@ -418,25 +427,12 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluatio
     # larger estimate is doubled next. The estimate returned is the sum of the two.
     nz, nphi = max(order + 2, 4), 2 * order + 2
     evals = 0
-    # Azimuth rule. Isotropic: a pilot on the coarse z rule keeps the uniform rule when it
-    # has already converged between 16 (order + 1) and 32 (order + 1) azimuths (smooth or
-    # polynomial BRDFs) or when the graded rule is not 10x better there (kinks away from
-    # dphi = 0, pi, as in Oren-Nayar). Anisotropic: a pilot as costly as that would dominate
-    # the run, so the uniform rule is kept only when it has converged from the first
-    # azimuth rule to twice that on the first z rule (trigonometric polynomials, which it
-    # integrates exactly); otherwise the graded rule is used (what makes Ward converge).
-    grading = GRADING if iso else ANISO_GRADING
-    if iso:
-        change = {}
-        for g in (1, GRADING):
-            a, ev_a, _ = step(brdf, basis, quantity, nz, 16 * (order + 1), g)
-            b, ev_b, _ = step(brdf, basis, quantity, nz, 32 * (order + 1), g)
-            change[g], evals = _diff(b, a)[0], evals + ev_a + ev_b
-            if g == 1 and change[1] <= tol * _diff(b, b)[1]:
-                break
-        if len(change) == 1 or change[GRADING] >= 0.1 * change[1]:
-            grading = 1
-    elif cost(nz, 2 * nphi) <= budget:
+    # Azimuth rule: a pilot as costly as the isotropic one (_iso_quadrature) would dominate
+    # the run, so the uniform rule is kept only when it has converged from the first azimuth
+    # rule to twice that on the first z rule (trigonometric polynomials, which it integrates
+    # exactly); otherwise the graded rule is used (what makes Ward converge).
+    grading = ANISO_GRADING
+    if cost(nz, 2 * nphi) <= budget:
         a, ev_a, _ = step(brdf, basis, quantity, nz, nphi, 1)
         b, ev_b, _ = step(brdf, basis, quantity, nz, 2 * nphi, 1)
         evals += ev_a + ev_b
@@ -446,27 +442,6 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluatio
     zmap = "gauss"
     if 2 * nz > max_nodes or cost(2 * nz, nphi) > budget:
         step = partial(step, grading=grading)
-        cur, ev, norm2 = step(brdf, basis, quantity, nz, nphi)
-        evals += ev
-    elif iso:
-        # The (z_i, z_o) rule: the tensor Gauss rule in z or in sqrt(z), or the diagonal
-        # rule (_diagonal_pairs), whichever changes least from nz to 2 nz nodes on the
-        # pilot's azimuths, 16 (order + 1). The tensor rules put a pair exactly on z_i = z_o
-        # for every node and, for a specular ridge narrower than their spacing, sample its
-        # crest with the weight of a whole cell: their change under doubling then shrinks
-        # while the error does not (blue-acrylic MERL in HemiZernike(24): change 4.7e-3 at
-        # 416 nodes, error 2.7e-2). The diagonal rule changes 10x less there from 26 to 52
-        # nodes (0.018 against 0.14); smooth lobes (Phong n = 20, Cook-Torrance GGX 0.3)
-        # change 1e-8 or less on the Gauss rule and keep it.
-        trial = {}
-        for zm in ISO_ZMAPS:
-            a, ev_a, _ = step(brdf, basis, quantity, nz, 16 * (order + 1), grading, zm)
-            b, ev_b, _ = step(brdf, basis, quantity, 2 * nz, 16 * (order + 1), grading, zm)
-            trial[zm], evals = _diff(b, a)[0], evals + ev_a + ev_b
-        zmap = min(ISO_ZMAPS, key=trial.get)
-        err["z"] = trial[zmap]
-        nz *= 2
-        step = partial(step, grading=grading, zmap=zmap)
         cur, ev, norm2 = step(brdf, basis, quantity, nz, nphi)
         evals += ev
     else:
@@ -501,20 +476,131 @@ def _quadrature(brdf, basis, quantity, iso, tol, nodes, max_nodes, max_evaluatio
         evals += ev
         err[dim] = _diff(new, cur)[0]
         cur = new
-    err_total = err["z"] + err["phi"]
-    converged = err_total <= tol * scale
-    if not converged:
-        warnings.warn(f"projection of {brdf!r} onto {basis!r} did not reach tol = {tol:.3g}: "
-                      f"estimated relative error {err_total / scale:.3g} (z {err['z'] / scale:.2g}"
-                      f", phi {err['phi'] / scale:.2g}) with {nz} x {nphi} nodes (max_nodes = "
-                      f"{max_nodes}, 4 x that in phi; max_evaluations = {budget:.3g}); the BRDF "
-                      "is sharper than the rule resolves: raise the limits or accept the error",
-                      RuntimeWarning,
-                      stacklevel=3)
+    converged = _not_converged_warning(brdf, basis, tol, err, scale, (nz, nphi), max_nodes,
+                                       budget, 3)
+    err_total = sum(err.values())
     return cur, dict(method="quadrature", nodes=(nz, nphi), evaluations=evals,
                      error_estimate=err_total, rel_error=err_total / scale, converged=converged,
                      norm2=norm2, azimuth_rule="uniform" if grading == 1 else
                      f"graded (p = {grading})", z_rule=zmap)
+
+
+def _not_converged_warning(brdf, basis, tol, err, scale, nodes, max_nodes, budget,
+                           stacklevel) -> bool:
+    """Return whether the estimates sum to tol or less; warn when they do not."""
+    total = sum(err.values())
+    if total <= tol * scale:
+        return True
+    parts = ", ".join(f"{d} {e / scale:.2g}" for d, e in err.items())
+    warnings.warn(f"projection of {brdf!r} onto {basis!r} did not reach tol = {tol:.3g}: "
+                  f"estimated relative error {total / scale:.3g} ({parts}) with {nodes[0]} x "
+                  f"{nodes[1]} nodes (max_nodes = {max_nodes}, 4 x that in phi; "
+                  f"max_evaluations = {budget:.3g}); the BRDF is sharper than the rule "
+                  "resolves: raise the limits or accept the error", RuntimeWarning,
+                  stacklevel=stacklevel + 1)
+    return False
+
+
+def _iso_quadrature(brdf, basis, quantity, tol, max_nodes, budget, fold, both_signs):
+    """Refine the isotropic rule until the estimated error is below tol (see _quadrature).
+
+    Each refinement doubles one dimension of the rule: the azimuths, or the z rule (for the
+    diagonal rule its along-ridge nodes s or its across-ridge nodes d, on their own). The
+    azimuth rules are nested (_IsoGrid), so doubling the azimuths evaluates only the new
+    nodes, and every rule comes with the azimuth error estimate of its own z rule for free:
+    the change from the rule with half its azimuths. The z estimates are the changes of the
+    last doubling of each. The estimate returned is their sum.
+    """
+    order = basis.order
+    grid = partial(_IsoGrid, brdf, basis, quantity, fold=fold, both_signs=both_signs)
+    nz, nphi = max(order + 2, 4), 2 * order + 2
+    pilot = 16 * (order + 1)
+    evals = 0
+    # Azimuth rule: a pilot on the coarse z rule keeps the uniform rule when it has already
+    # converged between 16 (order + 1) and 32 (order + 1) azimuths (smooth or polynomial
+    # BRDFs) or when the graded rule is not 10x better there (kinks away from dphi = 0, pi,
+    # as in Oren-Nayar). The 32 (order + 1) rule contains the other: one sampling each.
+    change = {}
+    for g in (1, GRADING):
+        run = grid(nz, grading=g)
+        run.sample(2 * pilot)
+        b, change[g], _ = run.result()
+        evals += run.evaluations
+        if g == 1 and change[1] <= tol * _diff(b, b)[1]:
+            break
+    grading = 1 if len(change) == 1 or change[GRADING] >= 0.1 * change[1] else GRADING
+    grid = partial(grid, grading=grading)
+
+    def cost(ns: int, nd: int, nphi: int) -> int:
+        return _IsoGrid.pair_count(ns, zmap, fold, nd) * (nphi // 2 + 1) * (1 + both_signs)
+
+    zmap = "gauss"
+    if 2 * nz > max_nodes or cost(2 * nz, 2 * nz, nphi) > budget:
+        err = {"z": np.inf}
+    else:
+        # The (z_i, z_o) rule: the tensor Gauss rule in z or in sqrt(z), or the diagonal
+        # rule (_diagonal_pairs), whichever changes least from nz to 2 nz nodes on the
+        # pilot's azimuths, 16 (order + 1). The tensor rules put a pair exactly on z_i = z_o
+        # for every node and, for a specular ridge narrower than their spacing, sample its
+        # crest with the weight of a whole cell: their change under doubling then shrinks
+        # while the error does not (blue-acrylic MERL in HemiZernike(24): change 4.7e-3 at
+        # 416 nodes, error 2.7e-2). The diagonal rule changes 10x less there from 26 to 52
+        # nodes (0.018 against 0.14); smooth lobes (Phong n = 20, Cook-Torrance GGX 0.3)
+        # change 1e-8 or less on the Gauss rule and keep it.
+        trial = {}
+        for zm in ISO_ZMAPS:
+            a, b = grid(nz, zm), grid(2 * nz, zm)
+            a.sample(pilot)
+            b.sample(pilot)
+            trial[zm] = _diff(b.result()[0], a.result()[0])[0]
+            evals += a.evaluations + b.evaluations
+        zmap = min(ISO_ZMAPS, key=trial.get)
+        nz *= 2
+        # The diagonal rule doubles its nodes along the ridge (s) and across it (d)
+        # separately: they converge at different rates (blue-acrylic in HemiZernike(24),
+        # error against a brute-force reference with (s, d) nodes (208, 104), (208, 208),
+        # (416, 104), (416, 208): 2.2e-5, 1.9e-5, 1.7e-5, 4.6e-6).
+        err = {"s": trial[zmap], "d": trial[zmap]} if zmap == "diagonal" else {"z": trial[zmap]}
+    ns = nd = nz
+    cur = grid(ns, zmap, nd=nd)
+    cur.sample(nphi)
+    evals += cur.evaluations
+    blocks, err["phi"], norm2 = cur.result()
+    cap = {"z": max_nodes, "s": max_nodes, "d": max_nodes, "phi": 4 * max_nodes}
+    while True:
+        scale = _diff(blocks, blocks)[1]
+        if sum(err.values()) <= tol * scale:
+            break
+        nxt = {"z": (2 * ns, 2 * nd, nphi), "s": (2 * ns, nd, nphi), "d": (ns, 2 * nd, nphi),
+               "phi": (ns, nd, 2 * nphi)}
+        size = {"z": 2 * ns, "s": 2 * ns, "d": 2 * nd, "phi": 2 * nphi}
+        dim = max((d for d in err if size[d] <= cap[d] and cost(*nxt[d]) <= budget),
+                  key=err.get, default=None)
+        if dim is None:
+            break
+        ns, nd, nphi = nxt[dim]
+        if dim == "phi":
+            before = cur.evaluations
+            cur.refine()
+            evals += cur.evaluations - before
+        else:
+            cur = grid(ns, zmap, nd=nd)
+            cur.sample(nphi)
+            evals += cur.evaluations
+        new, err["phi"], norm2 = cur.result()
+        if dim != "phi":
+            err[dim] = _diff(new, blocks)[0]
+        blocks = new
+    converged = _not_converged_warning(brdf, basis, tol, err, scale, (ns, nphi), max_nodes,
+                                       budget, 4)
+    err_total = sum(err.values())
+    info = dict(method="quadrature", nodes=(ns, nphi), evaluations=evals,
+                error_estimate=err_total, rel_error=err_total / scale, converged=converged,
+                norm2=norm2, azimuth_rule="uniform" if grading == 1 else
+                f"graded (p = {grading})", z_rule=zmap)
+    if zmap == "diagonal":
+        info["diagonal_nodes"] = cur.diagonal_nodes
+    return blocks, info
 
 
 def _diff(a, b) -> tuple[float, float]:
@@ -526,6 +612,7 @@ def _diff(a, b) -> tuple[float, float]:
     return err, (scale if scale > 0 else 1.0)
 
 
+
 def _azimuth_nodes(nphi: int, grading: int) -> tuple[NDArray, NDArray]:
     """Nodes and weights on [0, pi] for int_0^pi g(dphi) d dphi, nphi / 2 intervals.
 
@@ -534,18 +621,32 @@ def _azimuth_nodes(nphi: int, grading: int) -> tuple[NDArray, NDArray]:
     which crowds nodes towards dphi = 0 and pi. Half-vector lobes (Cook-Torrance, Ward,
     Blinn-Phong) sit at dphi = pi and narrow like cos(theta) near the horizon, where the
     uniform rule converges only algebraically; the graded rule resolves them.
+
+    Both are trapezoid rules in t = k / (nphi / 2), so the rule with twice the intervals
+    holds these nodes (bit for bit) at its even k: the rules are nested.
     """
-    half = nphi // 2
+    dphi, raw = _azimuth_raw(nphi // 2, grading)
+    return dphi, raw / (nphi // 2)
+
+
+def _azimuth_raw(half: int, grading: int, odd: bool = False) -> tuple[NDArray, NDArray]:
+    """Nodes of the azimuth rule with ``half`` intervals and ``half`` times their weights.
+
+    ``odd``: only the nodes at odd k, those that the rule with half the intervals lacks.
+    """
     t = np.arange(half + 1) / half
+    if odd:
+        t = t[1::2]
     if grading == 1:
         u, du = t, np.ones_like(t)
     else:
         a, b = t**grading, (1.0 - t) ** grading
         u = a / (a + b)
         du = grading * (t * (1.0 - t)) ** (grading - 1) / (a + b) ** 2
-    w = np.pi * du / half
-    w[[0, -1]] *= 0.5
-    return np.pi * u, w
+    raw = np.pi * du
+    if not odd:
+        raw[[0, -1]] *= 0.5
+    return np.pi * u, raw
 
 
 #: Sigmoidal grading of the azimuth rule tried against the uniform one (see _azimuth_nodes).
@@ -559,20 +660,23 @@ GRADING = 6
 ANISO_GRADING = 4
 
 
-def _diagonal_pairs(n: int, grading: int) -> tuple[NDArray, NDArray, NDArray]:
+def _diagonal_pairs(n: int, grading: int,
+                    nd: int | None = None) -> tuple[NDArray, NDArray, NDArray]:
     """Pairs (z_i, z_o) and weights of a rule for int int_{z_i >= z_o} g dz_i dz_o.
 
     In s = (z_i + z_o) / 2 and d = z_i - z_o (unit Jacobian) the triangle z_i >= z_o is
     0 <= d <= D(s) = 2 min(s, 1 - s): Gauss-Legendre in s on [0, 1/2] and [1/2, 1] (the
-    kink of D), n / 2 nodes each, and in tau with d = D(s) tau^p, n / 2 nodes, which crowds
-    them towards the diagonal d = 0 where the specular ridge of a sharp isotropic BRDF lies
-    (its width in z_i - z_o is about 2 sin(theta) times its width in theta_h). n^2 / 2
-    pairs, as many as the folded n x n tensor rule.
+    kink of D), n / 2 nodes each, and in tau with d = D(s) tau^p, nd / 2 nodes (nd = n by
+    default), which crowds them towards the diagonal d = 0 where the specular ridge of a
+    sharp isotropic BRDF lies (its width in z_i - z_o is about 2 sin(theta) times its width
+    in theta_h). n nd / 2 pairs, as many as the folded n x n tensor rule when nd = n.
     """
     k = max(1, n // 2)
     t, w = _gauss_z(k)
     s = np.concatenate([0.5 * t, 0.5 + 0.5 * t])
     ws = np.concatenate([0.5 * w, 0.5 * w])
+    if nd is not None and max(1, nd // 2) != k:
+        t, w = _gauss_z(max(1, nd // 2))
     big = 2.0 * np.minimum(s, 1.0 - s)  # D(s)
     d = big[:, None] * t[None, :] ** grading
     wd = big[:, None] * grading * t[None, :] ** (grading - 1) * w[None, :]
@@ -600,13 +704,38 @@ def _mirror_symmetric(brdf: Any) -> bool:
     return bool(np.max(np.abs(a - b)) <= 1e-10 * np.max(np.abs(a)))
 
 
-def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=None,
-              both_signs=False):
-    """Isotropic blocks [(k_m, k_m, channels)] with nz z nodes and nphi azimuths.
+def _evaluator(brdf: Any):
+    """Return a function (wi, wo) -> values for quadrature nodes, unit vectors with z >= 0.
 
-    ``zmap`` ``"gauss"`` or ``"sqrt"`` is a tensor rule in (z_i, z_o) (_z_nodes);
-    ``"diagonal"`` the rule of _diagonal_pairs, whose pairs lie on no tensor grid, so each
-    block is then a sum over pairs, c_m sum_p w_p F_m(p) P_j(z_i,p) P_k(z_o,p).
+    For a :class:`project.brdf.BRDF` that keeps the base class's ``eval`` that is ``_eval``
+    itself: the nodes meet its contract (C-contiguous (n, 3) unit vectors in the upper
+    hemisphere), so the checks, horizon masks and copies of ``eval`` would change nothing
+    (a tenth of the time of a MERL table lookup).
+    """
+    from .brdf import BRDF
+
+    if isinstance(brdf, BRDF) and type(brdf).eval is BRDF.eval:
+        ch = int(brdf.channels)
+
+        def evaluate(wi: NDArray, wo: NDArray) -> NDArray:
+            v = np.asarray(brdf._eval(wi, wo), dtype=np.float64)
+            if v.shape != (wi.shape[0], ch) or not v.flags.writeable:
+                v = np.array(np.broadcast_to(v, (wi.shape[0], ch)))
+            return v
+
+        return evaluate
+    return brdf.eval
+
+
+class _IsoGrid:
+    """An isotropic BRDF sampled on one (z_i, z_o) rule and a nested azimuth rule.
+
+    ``sample(nphi)`` evaluates the rule with nphi / 2 azimuth intervals on [0, pi],
+    ``refine()`` doubles them by evaluating the new nodes only (the rules are nested,
+    _azimuth_nodes), and ``result()`` returns the blocks together with the change from the
+    rule with half the azimuths, which costs no evaluation: per pair the sums
+    sum_j r_j cos(m dphi_j) q_j (r_j = half w_j, the same number for a node in both rules)
+    are kept for the current rule and for its even nodes.
 
     Only dphi in [0, pi] is sampled (w_o at azimuth -dphi), and F_m(z_i, z_o) =
     2 int_0^pi q cos(m dphi) holds for BRDFs even in dphi. ``fold`` (default: the BRDF is
@@ -618,84 +747,207 @@ def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=Non
     ``both_signs`` then samples w_o at +dphi as well and projects the even part
     (q(dphi) + q(-dphi)) / 2, so the general blocks are exact too; ||q||^2 then counts both
     signs (the odd part, which no isotropic block holds, included).
+
+    ``zmap`` ``"gauss"`` or ``"sqrt"`` is a tensor rule in (z_i, z_o) (_z_nodes), nz nodes
+    per direction; ``"diagonal"`` the rule of _diagonal_pairs with (nz, nd) nodes, whose
+    pairs lie on no tensor grid, so each block is then a sum over pairs,
+    c_m sum_p w_p F_m(p) P_j(z_i,p) P_k(z_o,p).
     """
-    half = nphi // 2
-    dphi, wphi = _azimuth_nodes(nphi, grading)  # [0, pi]
-    ch = int(brdf.channels)
-    reciprocal = bool(getattr(brdf, "reciprocal", True)) if fold is None else bool(fold)
-    if zmap == "diagonal":
-        zi, zo, pw = _diagonal_pairs(nz, DIAGONAL_GRADING)
-        if not reciprocal:  # the triangle z_i < z_o too, by swapping
-            zi, zo, pw = np.concatenate([zi, zo]), np.concatenate([zo, zi]), np.tile(pw, 2)
-    else:
-        z, wz = _z_nodes(nz, zmap)
-        ia, ib = np.triu_indices(nz) if reciprocal else np.indices((nz, nz)).reshape(2, -1)
-        zi, zo, pw = z[ia], z[ib], wz[ia] * wz[ib]
-    # ||q||^2 = sum_p w_p 2 pi int_0^{2 pi} q^2, pairs off the diagonal twice when folded
-    twice = np.where(zi == zo, 1.0, 2.0) if reciprocal else np.ones(zi.size)
-    check_bytes(8.0 * min(zi.size, CHUNK) * (half + 1) * (ch + 6),
-                f"sampling {brdf!r} on {zi.size} x {half + 1} nodes")
-    sti, sto = np.sqrt((1.0 - zi) * (1.0 + zi)), np.sqrt((1.0 - zo) * (1.0 + zo))
-    # F_m = int_0^{2 pi} q cos(m dphi) = 2 int_0^pi (q even)
-    top = _top(basis.azimuthal)
-    cosm = 2.0 * wphi[:, None] * np.cos(np.outer(dphi, np.arange(top + 1)))
-    fm = np.empty((zi.size, top + 1, ch))
-    norm2 = np.zeros(ch)
-    cd, sd = np.cos(dphi), np.sin(dphi)
-    rows = max(1, CHUNK // (half + 1))
-    for s in range(0, zi.size, rows):
-        sl = slice(s, s + rows)
-        n = zi[sl].size
-        wi = np.zeros((n, half + 1, 3))
-        wi[..., 0] = sti[sl, None]
-        wi[..., 2] = zi[sl, None]
-        wo = np.empty((n, half + 1, 3))
-        wo[..., 0] = sto[sl, None] * cd
-        wo[..., 1] = -sto[sl, None] * sd
-        wo[..., 2] = zo[sl, None]
-        q = _eval_pairs(brdf, wi.reshape(-1, 3), wo.reshape(-1, 3), ch).reshape(n, half + 1, ch)
-        if both_signs:
-            wo[..., 1] *= -1.0
-            q2 = _eval_pairs(brdf, wi.reshape(-1, 3), wo.reshape(-1, 3),
-                             ch).reshape(n, half + 1, ch)
-            sq = 0.5 * (q * q + q2 * q2)
-            q = 0.5 * (q + q2)
-            del q2
+
+    def __init__(self, brdf, basis, quantity, nz, zmap="gauss", grading=1, fold=None,
+                 both_signs=False, nd=None):
+        self.brdf, self.basis, self.quantity = brdf, basis, quantity
+        self.zmap, self.grading, self.both_signs = zmap, grading, bool(both_signs)
+        self.ch = int(brdf.channels)
+        self.top = _top(basis.azimuthal)
+        rec = bool(getattr(brdf, "reciprocal", True)) if fold is None else bool(fold)
+        self.reciprocal = rec
+        if zmap == "diagonal":
+            self.diagonal_nodes = (2 * max(1, nz // 2), max(1, (nz if nd is None else nd) // 2))
+            zi, zo, pw = _diagonal_pairs(nz, DIAGONAL_GRADING, nd)
+            if not rec:  # the triangle z_i < z_o too, by swapping
+                zi, zo, pw = np.concatenate([zi, zo]), np.concatenate([zo, zi]), np.tile(pw, 2)
         else:
-            sq = q * q
-        if quantity == "f_cos":
-            zz = (zi[sl] * zo[sl])[:, None, None]
-            q *= zz
-            sq *= zz * zz
-        qt = q.transpose(0, 2, 1)  # (n, ch, half + 1): one matrix product for F_m
-        norm2 += 4.0 * np.pi * np.einsum("a,ac->c", pw[sl] * twice[sl],
-                                         sq.transpose(0, 2, 1) @ wphi)
-        fm[sl] = (qt @ cosm).transpose(0, 2, 1)
-    az = basis.azimuthal
-    blocks = []
-    if zmap == "diagonal":
-        blocks = [np.zeros((k, k, ch)) for k in np.bincount(az[az >= 0])]
-        for s in range(0, zi.size, CHUNK // 64):  # radial tables of a chunk of pairs
-            sl = slice(s, s + CHUNK // 64)
-            pi_, po_ = basis.radial(zi[sl]), basis.radial(zo[sl])
-            for m in range(top + 1):
-                a, b = pi_[:, az == m], po_[:, az == m]
-                wf = (2.0 * np.pi if m == 0 else np.pi) * pw[sl, None] * fm[sl, m]
-                for k in range(ch):
-                    blocks[m][..., k] += (a * wf[:, k, None]).T @ b
-        if reciprocal:
-            blocks = [b + b.swapaxes(0, 1) for b in blocks]
-        return blocks, zi.size * (half + 1) * (2 if both_signs else 1), norm2
-    full = np.empty((nz, nz, top + 1, ch))
-    full[ia, ib] = fm
-    if reciprocal:
-        full[ib, ia] = fm
-    p = basis.radial(z) * wz[:, None]
-    for m in range(top + 1):
-        pm = p[:, az == m]
-        c = 2.0 * np.pi if m == 0 else np.pi
-        blocks.append(c * np.einsum("aj,abc,bk->jkc", pm, full[:, :, m], pm, optimize=True))
-    return blocks, zi.size * (half + 1) * (2 if both_signs else 1), norm2
+            self.z, self.wz = _z_nodes(nz, zmap)
+            self.ia, self.ib = (np.triu_indices(nz) if rec
+                                else np.indices((nz, nz)).reshape(2, -1))
+            zi, zo = self.z[self.ia], self.z[self.ib]
+            pw = self.wz[self.ia] * self.wz[self.ib]
+        self.zi, self.zo, self.pw = zi, zo, pw
+        # ||q||^2 = sum_p w_p 2 pi int_0^{2 pi} q^2, pairs off the diagonal twice when folded
+        self.norm_weight = pw * (np.where(zi == zo, 1.0, 2.0) if rec else 1.0)
+        self.half = 0  # azimuth intervals sampled so far
+        self.evaluations = 0
+        self._sums = self._prev = None  # (pairs, channels, top + 1)
+        self._sq = np.zeros(self.ch)
+        self._eval = _evaluator(brdf)
+
+    @staticmethod
+    def pair_count(nz: int, zmap: str, fold: bool, nd: int | None = None) -> int:
+        """(z_i, z_o) pairs sampled by the rule (for the evaluation budget)."""
+        if zmap == "diagonal":
+            n = 2 * max(1, nz // 2) * max(1, (nz if nd is None else nd) // 2)
+            return n if fold else 2 * n
+        return nz * (nz + 1) // 2 if fold else nz * nz
+
+    def sample(self, nphi: int) -> None:
+        """Evaluate the rule with nphi / 2 azimuth intervals (nothing sampled before)."""
+        half = nphi // 2
+        if half % 2 == 0:  # its even nodes first: the rule with half the intervals
+            self._sums, self._sq = self._sample(*_azimuth_raw(half // 2, self.grading))
+            self.half = half // 2
+            self.refine()
+        else:
+            self._sums, self._sq = self._sample(*_azimuth_raw(half, self.grading))
+            self.half = half
+
+    def refine(self) -> None:
+        """Double the azimuth intervals, evaluating the BRDF at the new nodes only."""
+        dphi, raw = _azimuth_raw(2 * self.half, self.grading, odd=True)
+        sums, sq = self._sample(dphi, raw)
+        self._prev = self._sums
+        self._sums = self._sums + sums
+        self._sq = self._sq + sq
+        self.half *= 2
+
+    def result(self) -> tuple[list[NDArray], float, NDArray]:
+        """Blocks, max |change| from half the azimuths (inf when odd) and ||q||^2."""
+        f = self._sums * (2.0 / self.half)  # F_m, (pairs, channels, top + 1)
+        if self._prev is None:
+            return self._blocks(f), np.inf, 4.0 * np.pi * self._sq / self.half
+        both = self._blocks(np.concatenate([f, self._prev * (4.0 / self.half)], axis=1))
+        ch = self.ch
+        blocks = [b[..., :ch] for b in both]
+        err = _diff(blocks, [b[..., ch:] for b in both])[0]
+        return blocks, err, 4.0 * np.pi * self._sq / self.half
+
+    def _sample(self, dphi: NDArray, raw: NDArray) -> tuple[NDArray, NDArray]:
+        """Sum raw q cos(m dphi) per pair and raw q^2 over the given azimuths."""
+        ch, nj, npairs = self.ch, dphi.size, self.zi.size
+        check_bytes(8.0 * min(npairs, CHUNK) * nj * (ch + 6) + 16.0 * npairs * ch * self.top,
+                    f"sampling {self.brdf!r} on {npairs} x {nj} nodes")
+        cosr = raw[:, None] * np.cos(np.outer(dphi, np.arange(self.top + 1)))  # (nj, m)
+        cd, sd = np.cos(dphi), np.sin(dphi)
+        sti = np.sqrt((1.0 - self.zi) * (1.0 + self.zi))
+        sto = np.sqrt((1.0 - self.zo) * (1.0 + self.zo))
+        sums = np.empty((npairs, ch, self.top + 1))
+        sq = np.zeros(ch)
+        rows = max(1, CHUNK // nj)
+        for s in range(0, npairs, rows):
+            sl = slice(s, s + rows)
+            n = self.zi[sl].size
+            wi, wo = _iso_directions(sti[sl], self.zi[sl], sto[sl], self.zo[sl], cd, sd)
+            q = self._values(wi, wo).reshape(n, nj, ch)
+            zz = (self.zi[sl] * self.zo[sl] if self.quantity == "f_cos" else np.ones(n))
+            if self.both_signs:  # the even part (q(dphi) + q(-dphi)) / 2; ||q||^2 of both
+                wo[:, 1] *= -1.0
+                q2 = self._values(wi, wo).reshape(n, nj, ch)
+                qq = 0.5 * (q * q + q2 * q2) * (zz * zz)[:, None, None]
+                q = 0.5 * (q + q2)
+                del q2
+            sqp = np.empty((n, ch))
+            _azimuth_sums(np.ascontiguousarray(q), zz, cosr, raw, sums[sl], sqp)
+            if self.both_signs:
+                sqp = np.tensordot(qq, raw, axes=([1], [0]))
+            sq += self.norm_weight[sl] @ sqp
+        self.evaluations += npairs * nj * (1 + self.both_signs)
+        return sums, sq
+
+    def _values(self, wi: NDArray, wo: NDArray) -> NDArray:
+        return _eval_pairs(self.brdf, wi, wo, self.ch, self._eval)
+
+    def _blocks(self, f: NDArray) -> list[NDArray]:
+        """Blocks [(k_m, k_m, c)] from F_m at the pairs, f (pairs, c, top + 1)."""
+        basis, az, c = self.basis, self.basis.azimuthal, f.shape[1]
+        if self.zmap == "diagonal":
+            blocks = [np.zeros((k, k, c)) for k in np.bincount(az[az >= 0])]
+            # products with k_m <= order / 2 + 1 columns: threaded BLAS only adds overhead
+            # (20x the time on two busy cores)
+            with threadpool_limits(1, user_api="blas"):
+                for s in range(0, self.zi.size, CHUNK // 64):  # radial tables of a chunk
+                    sl = slice(s, s + CHUNK // 64)
+                    pi_, po_ = basis.radial(self.zi[sl]), basis.radial(self.zo[sl])
+                    for m in range(self.top + 1):
+                        a, b = pi_[:, az == m], po_[:, az == m]
+                        wf = ((2.0 * np.pi if m == 0 else np.pi) * self.pw[sl, None]
+                              * f[sl, :, m])
+                        for k in range(c):
+                            blocks[m][..., k] += (a * wf[:, k, None]).T @ b
+            if self.reciprocal:
+                blocks = [b + b.swapaxes(0, 1) for b in blocks]
+            return blocks
+        nz = self.z.size
+        full = np.empty((nz, nz, self.top + 1, c))
+        full[self.ia, self.ib] = f.transpose(0, 2, 1)
+        if self.reciprocal:
+            full[self.ib, self.ia] = f.transpose(0, 2, 1)
+        p = basis.radial(self.z) * self.wz[:, None]
+        blocks = []
+        for m in range(self.top + 1):
+            pm = p[:, az == m]
+            cm = 2.0 * np.pi if m == 0 else np.pi
+            blocks.append(cm * np.einsum("aj,abc,bk->jkc", pm, full[:, :, m], pm,
+                                         optimize=True))
+        return blocks
+
+
+@pjit
+def _azimuth_sums(q, scale, cosr, raw, sums, sq):  # pragma: no cover - compiled
+    # q (n, nj, c) values at pair p, azimuth j; scale (n,) factor of pair p (cos cos for
+    # f_cos); cosr (nj, m) = raw_j cos(m dphi_j). sums[p, c, m] = sum_j cosr[j, m] q s,
+    # sq[p, c] = sum_j raw_j (q s)^2.
+    n, nj, nc = q.shape
+    nm = cosr.shape[1]
+    for p in prange(n):
+        acc = np.zeros(nm)
+        for c in range(nc):
+            acc[:] = 0.0
+            s2 = 0.0
+            for j in range(nj):
+                v = q[p, j, c] * scale[p]
+                s2 += raw[j] * v * v
+                for m in range(nm):
+                    acc[m] += cosr[j, m] * v
+            for m in range(nm):
+                sums[p, c, m] = acc[m]
+            sq[p, c] = s2
+
+
+@pjit
+def _iso_directions_kernel(sti, zi, sto, zo, cd, sd, wi, wo):  # pragma: no cover - compiled
+    # pair p, azimuth j -> row p * nj + j: w_i = (sin theta_i, 0, z_i) at azimuth 0 and w_o at
+    # azimuth -dphi_j
+    nj = cd.size
+    for p in prange(sti.size):
+        for j in range(nj):
+            k = p * nj + j
+            wi[k, 0] = sti[p]
+            wi[k, 1] = 0.0
+            wi[k, 2] = zi[p]
+            wo[k, 0] = sto[p] * cd[j]
+            wo[k, 1] = -sto[p] * sd[j]
+            wo[k, 2] = zo[p]
+
+
+def _iso_directions(sti, zi, sto, zo, cd, sd) -> tuple[NDArray, NDArray]:
+    """(pairs * azimuths, 3) incident and outgoing directions of the isotropic rule."""
+    n = sti.size * cd.size
+    wi, wo = np.empty((n, 3)), np.empty((n, 3))
+    _iso_directions_kernel(sti, zi, sto, zo, cd, sd, wi, wo)
+    return wi, wo
+
+
+def _iso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", fold=None,
+              both_signs=False, nd=None):
+    """Isotropic blocks [(k_m, k_m, channels)], evaluations and ||q||^2 of one rule.
+
+    nz z nodes (and nd across the diagonal for ``zmap="diagonal"``) and nphi azimuths: see
+    :class:`_IsoGrid`.
+    """
+    grid = _IsoGrid(brdf, basis, quantity, nz, zmap, grading, fold, both_signs, nd)
+    grid.sample(nphi)
+    blocks, _, norm2 = grid.result()
+    return blocks, grid.evaluations, norm2
 
 
 def _aniso_rule(brdf, basis, quantity, nz, nphi, grading=1, zmap="gauss", nfi=None):

@@ -27,8 +27,8 @@ Cases (the targets of issue 3, on the 2-core machine):
 
 Then one row for a sharp measured material (issue 13): blue-acrylic (a specular ridge about
 0.003 wide in z_i - z_o) to HemiZernike(24) at tolerance 1e-4, skipped like case 3. It prints
-our time, nodes and rule at tolerances 1e-4 and 1e-3, the error against an independent
-brute-force reference, and the
+our time, nodes and rule (for the diagonal rule, its nodes along and across the ridge) at
+tolerances 1e-4 and 1e-3, the error against an independent brute-force reference, and the
 same for the old method (the tensor Gauss rule in (z_i, z_o) only, folded onto z_i <= z_o as
 if the table were mirror symmetric, as before issue 13). The
 reference resolves the ridge by brute force: Gauss in z_i (``--ref-nodes``) against a fine
@@ -178,12 +178,16 @@ def sharp_row(path: Path, args: argparse.Namespace, reps: int) -> None:
             best[name] = min(best[name], time.perf_counter() - t0)
     print(f"\nSharp measured material: blue-acrylic to {zb!r}, tol 1e-4; reference "
           f"{args.ref_nodes} x {args.ref_fine} Gauss x 400 azimuths ({t_ref:.0f} s)")
-    print("| method | s | nodes (z, phi) | z rule | rel. error est. | error vs reference | "
+    print("| method | s | nodes (z, phi) | z rule (s x d nodes) | rel. error est. | "
+          "error vs reference | "
           "evaluations |")
     print("|---" * 7 + "|")
     for name in best:
         info = out[name].info
-        print(f"| {name} | {best[name]:.2f} | {info['nodes']} | {info.get('z_rule', '-')} | "
+        rule = info.get("z_rule", "-")
+        if "diagonal_nodes" in info:
+            rule += " {} x {}".format(*info["diagonal_nodes"])
+        print(f"| {name} | {best[name]:.2f} | {info['nodes']} | {rule} | "
               f"{info['rel_error']:.1e}{'' if info['converged'] else ' (not met)'} | "
               f"{block_error(out[name], ref):.1e} | {info['evaluations']:,} |", flush=True)
     print(f"old / ours: {best['old'] / best['ours']:.3g} at tol 1e-4, "

@@ -634,3 +634,133 @@ def test_general_lstsq_recovers_a_matrix_in_the_span():
     # a symmetric matrix cannot hold the antisymmetric half of m
     assert sym.reciprocal and np.array_equal(sym.matrix, sym.matrix.T)
     assert np.linalg.norm(sym.matrix - m) > 0.5 * np.linalg.norm(0.5 * (m - m.T))
+
+
+# -- nested azimuth rules and the error estimates ----------------------------------------------
+class Counting(BRDF):
+    """Poly(0) that records every pair it is evaluated at."""
+
+    def __init__(self):
+        self.inner, self.seen = Poly(0.0), []
+
+    def _eval(self, wi, wo):
+        self.seen.append(np.concatenate([wi, wo], axis=1))
+        return self.inner._eval(wi, wo)
+
+
+@pytest.mark.parametrize("zmap, grading", [("gauss", 1), ("diagonal", 6)])
+def test_azimuth_refinement_evaluates_only_the_new_nodes(zmap, grading):
+    from project.quadrature import _iso_rule, _IsoGrid
+
+    zb, brdf = HemiZernike(5), Counting()
+    grid = _IsoGrid(brdf, zb, "f", 8, zmap, grading, nd=12)
+    grid.sample(24)  # 12 intervals: 13 azimuths per pair
+    pairs = grid.zi.size
+    assert grid.evaluations == pairs * 13 == sum(len(s) for s in brdf.seen)
+    grid.refine()  # 24 intervals: the 12 new (odd) azimuths only
+    assert grid.evaluations == pairs * 25 == sum(len(s) for s in brdf.seen)
+    # the samples are exactly the nodes of the 48-azimuth rule, each evaluated once: the
+    # independent reference is that rule sampled from scratch (rows compared bit for bit)
+    fresh = Counting()
+    want, ev, _ = _iso_rule(fresh, zb, "f", 8, 48, grading, zmap, nd=12)
+    seen, ref = np.concatenate(brdf.seen), np.concatenate(fresh.seen)
+    assert ev == pairs * 25 and len(np.unique(seen, axis=0)) == len(seen)
+    np.testing.assert_array_equal(np.unique(seen, axis=0), np.unique(ref, axis=0))
+    got, err, _ = grid.result()
+    scale = max(np.max(np.abs(b)) for b in want)
+    for g, w in zip(got, want, strict=True):  # same sums in another order: rounding 1e-14
+        np.testing.assert_allclose(g, w, rtol=0, atol=1e-13 * scale)
+    # the estimate is the change from the rule of the even nodes, the 24-azimuth rule
+    half = _iso_rule(Poly(0.0), zb, "f", 8, 24, grading, zmap, nd=12)[0]
+    change = max(np.max(np.abs(g - h)) for g, h in zip(got, half, strict=True))
+    assert abs(err - change) <= 1e-13 * scale
+
+
+class Bessel(BRDF):
+    """f = exp(kappa (x_i x_o + y_i y_o)) = exp(kappa s_i s_o cos(dphi)).
+
+    Its azimuthal transforms are known in closed form: F_m = 2 pi I_m(kappa s_i s_o)
+    (Abramowitz & Stegun 9.6.19), so the azimuth rules' error can be measured exactly.
+    """
+
+    def __init__(self, kappa):
+        self.kappa = kappa
+
+    def _eval(self, wi, wo):
+        return np.exp(self.kappa * (wi[:, 0] * wo[:, 0] + wi[:, 1] * wo[:, 1]))[:, None]
+
+
+def bessel_blocks(kappa, basis, nz):
+    """Blocks c_m P^T W F_m W P with the exact F_m and Gauss-Legendre in z (numpy only)."""
+    from scipy.special import iv
+
+    t, w = np.polynomial.legendre.leggauss(nz)
+    z, w = 0.5 * (t + 1.0), 0.5 * w
+    s = np.sqrt(1.0 - z * z)
+    p = basis.radial(z) * w[:, None]
+    az = basis.azimuthal
+    out = []
+    for m in range(basis.order + 1):
+        f = 2.0 * np.pi * iv(m, kappa * np.outer(s, s))
+        pm = p[:, az == m]
+        out.append((2.0 * np.pi if m == 0 else np.pi) * (pm.T @ f @ pm))
+    return out
+
+
+@pytest.mark.parametrize("grading", [1, 6])
+def test_azimuth_estimate_bounds_the_azimuth_error(grading):
+    # same z rule in both, so the difference is the azimuth rule's error alone; the
+    # estimate (change from the rule of its even nodes) must bound it at every level, and
+    # the rules must converge (kappa = 12 is sharp in dphi: e^12 at 0 against e^-12 at pi)
+    from project.quadrature import _IsoGrid
+
+    zb, kappa = HemiZernike(6), 12.0
+    ref = bessel_blocks(kappa, zb, 20)
+    scale = max(np.max(np.abs(b)) for b in ref)
+    grid = _IsoGrid(Bessel(kappa), zb, "f", 20, "gauss", grading)
+    grid.sample(8)
+    errors = []
+    for _ in range(5):
+        grid.refine()
+        got, est, _ = grid.result()
+        true = max(np.max(np.abs(g[..., 0] - r)) for g, r in zip(got, ref, strict=True))
+        # converged rules differ by rounding (sums of ~1e3 terms): 1e-13 allowance
+        assert true <= est + 1e-13 * scale, (2 * grid.half, true / scale, est / scale)
+        errors.append(true / scale)
+    assert errors[-1] < 1e-10 and errors[0] > 1e-6  # the test covers the converging range
+
+
+@pytest.mark.parametrize("tol", [1e-2, 1e-4, 1e-7])
+def test_projection_estimate_bounds_the_true_error(tol):
+    # reference: 40 Gauss nodes in z (the integrand is smooth in z: converged to ~1e-15, see
+    # the check below) and the exact azimuthal transforms
+    zb, kappa = HemiZernike(6), 12.0
+    ref = bessel_blocks(kappa, zb, 40)
+    scale = max(np.max(np.abs(b)) for b in ref)
+    assert max(np.max(np.abs(a - b)) for a, b in zip(ref, bessel_blocks(kappa, zb, 30),
+                                                      strict=True)) < 1e-13 * scale
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # e^12 lobes: truncation warning
+        cm = project(Bessel(kappa), zb, quantity="f", tol=tol)
+    got = cm.stored
+    true = max(np.max(np.abs(g - r)) for g, r in zip(got, ref, strict=True))
+    assert cm.info["converged"] and cm.info["rel_error"] <= tol
+    # rounding allowance as in test_azimuth_estimate_bounds_the_azimuth_error
+    assert true <= cm.info["error_estimate"] + 1e-13 * scale, (true / scale,
+                                                               cm.info["rel_error"])
+
+
+def test_diagonal_rule_refines_across_the_ridge_on_its_own():
+    # (s, d) nodes (32, 48): 16 Gauss nodes per s panel and 24 in tau, exact for the
+    # polynomial like the square rule of test_diagonal_rule_matches_tensor_rule
+    from project.quadrature import _iso_rule
+
+    zb = HemiZernike(5)
+    ref = _iso_rule(Poly(0.0), zb, "f", 16, 24, fold=True)[0]
+    got, ev, _ = _iso_rule(Poly(0.0), zb, "f", 32, 24, zmap="diagonal", fold=True, nd=48)
+    assert ev == 32 * 24 * 13  # s nodes x d nodes x azimuths
+    scale = max(np.max(np.abs(b)) for b in ref)
+    for g, r in zip(got, ref, strict=True):
+        np.testing.assert_allclose(0.5 * (g + g.swapaxes(0, 1)), 0.5 * (r + r.swapaxes(0, 1)),
+                                   rtol=0, atol=1e-13 * scale)
+
