@@ -35,6 +35,7 @@ bench: $(VENV)/.installed-test
 	$(BIN)/python tests/benchmarks/bench_simulate.py
 	$(BIN)/python tests/benchmarks/bench_compress.py
 	$(BIN)/python tests/benchmarks/bench_distributed.py
+	$(BIN)/python tests/benchmarks/bench_cli.py
 
 lint: $(VENV)/.installed-test
 	$(BIN)/ruff check basis project compress tests

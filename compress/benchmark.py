@@ -26,7 +26,10 @@ and writes
   (CGF 2021, 675 float32 = 2.7 kB) and the non-parametric factored microfacet model of
   Bagher, Snyder & Nowrouzezahrai (ACM TOG 2016, 3.2 kB);
 - ``summary.json``: medians and counts per tolerance, and the medians of the reciprocity
-  residual and floor, the image error and the time of ``select``.
+  residual and floor, the image error and the time of ``select``;
+- ``materials/NAME.html``: the page of :func:`compress.report` on the
+  representation selected at the strictest tolerance, against the measured file (errors,
+  lobes, spheres, error by band, and the candidate table with the selected one marked).
 
 :func:`benchmark_merl` is the same on the MERL files of a folder only.
 
@@ -85,10 +88,11 @@ from numpy.typing import NDArray
 from basis.validation import dask_client
 from project.io import atomic_path
 
-from .render import render_sphere
+from .report import LIGHTS, PUBLISHED, image_error, report
 from .selection import DEFAULT_CANDIDATES, NoCandidateError, _is_reciprocal, select
 
-__all__ = ["FORMATS", "PUBLISHED", "benchmark_files", "benchmark_merl", "image_error"]
+__all__ = ["FORMATS", "LIGHTS", "PUBLISHED", "benchmark_files", "benchmark_merl",
+           "image_error"]
 
 #: Measured file formats the benchmark reads, by suffix.
 FORMATS = {"merl": ".binary", "rgl": ".bsdf"}
@@ -97,45 +101,6 @@ _FORMAT_NAMES = {"merl": "MERL", "rgl": "RGL"}
 #: Seed of select's error pairs (its default), with which the reciprocity of a material
 #: that met no tolerance is measured again: the same pairs as select's own measurement.
 _PAIR_SEED = 2027
-
-#: Published sizes of compact MERL representations (bytes per material), for the chart.
-PUBLISHED = {"neural BRDF (Sztrajman et al. 2021)": 2700,
-             "factored microfacet (Bagher et al. 2016)": 3200}
-#: Lights of the image error: unit vectors in the frame of the view (0, 0, 1).
-LIGHTS = ((0.0, 0.0, 1.0),
-          (math.sin(math.radians(45.0)), 0.0, math.cos(math.radians(45.0))),
-          (0.0, math.sin(math.radians(75.0)), math.cos(math.radians(75.0))))
-_VIEW = (0.0, 0.0, 1.0)
-
-
-def image_error(brdf: Any, approx: Any, *, size: int = 128) -> float:
-    """Relative RMS difference of lit-sphere pictures, ``approx`` against ``brdf``.
-
-    Parameters
-    ----------
-    brdf, approx : BRDF
-        Objects with ``eval(wi, wo)`` (``approx`` may also be a coefficient matrix).
-    size : int
-        Image side in pixels (:func:`compress.render_sphere`).
-
-    Returns
-    -------
-    float
-        sqrt(sum (I_approx - I)^2 / sum I^2) over the pixels on the sphere, the channels
-        and the three lights of :data:`LIGHTS` (view along z), each light of unit
-        irradiance.
-    """
-    num = den = 0.0
-    for light in LIGHTS:
-        ref = render_sphere(brdf, light, size=size, view=_VIEW)
-        img = render_sphere(approx, light, size=size, view=_VIEW)
-        if img.ndim < ref.ndim:
-            img = img[..., None]
-        on = np.isfinite(ref)
-        num += float(np.sum((np.broadcast_to(img, ref.shape)[on] - ref[on]) ** 2))
-        den += float(np.sum(ref[on] ** 2))
-    return math.sqrt(num / den) if den > 0 else math.nan
-
 
 def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
                    tols: Sequence[float] = (0.05, 0.10), workers: int = 2,
@@ -384,6 +349,8 @@ def _run_one(path: str, out: str, job: dict) -> None:
                              dtypes=(pick["dtype"],), error_n=1024,
                              reciprocal=_is_reciprocal(pick["candidate"]))
             row[f"image_{key}"] = image_error(brdf, rep)
+            report(rep, brdf, Path(out) / "materials" / f"{name}.html",
+                   title=f"{name}: {pick['label']} at {pick['dtype']}")
     keep = ("label", "form", "family", "dtype", "bytes", "l2", "l2_stderr", "log",
             "seconds", "status")
     cands = [{**{k: _plain(r[k]) for k in keep}, "reciprocal": _is_reciprocal(r["candidate"])}

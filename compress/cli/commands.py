@@ -30,8 +30,12 @@ import warnings
 from pathlib import Path
 from typing import Any
 
-from basis import KINDS
+# Only the standard library at import time: `scatmodes --version` and every `--help` answer
+# without loading numba, SciPy, h5py or matplotlib; each command imports what it needs.
 
+#: The basis kinds of ``basis.KINDS``, spelled out so that building the parser imports no
+#: numba (tests/compress/cli/test_startup.py checks that the two agree).
+KINDS = ("zernike", "harmonics", "harmonics-even", "sh")
 #: Parameters of each model in the help examples and in the hints of error messages.
 MODEL_EXAMPLES = {
     "Lambert": "albedo=0.5",
@@ -116,10 +120,12 @@ def _orders(text: str, name: str = "--orders") -> tuple[int, ...]:
 
 
 def _kinds(text: str) -> tuple[str, ...]:
+    from basis import KINDS as known  # the library's list, in case it grew
+
     kinds = tuple(k.strip() for k in text.split(",") if k.strip())
-    bad = [k for k in kinds if k not in KINDS]
+    bad = [k for k in kinds if k not in known]
     if not kinds or bad:
-        raise UserError(f"--kinds must be comma-separated basis kinds from {', '.join(KINDS)}, "
+        raise UserError(f"--kinds must be comma-separated basis kinds from {', '.join(known)}, "
                         f"got {text!r}")
     return kinds
 
@@ -262,6 +268,17 @@ def _demo(args: argparse.Namespace) -> int:
     out = _output_dir(args.out)
     orders = _orders(args.orders)
     study_orders = _orders(args.study_orders, "--study-orders")
+    # the kernels of steps 2 and 3 compile in a second process while step 1 runs (only a
+    # first run compiles; later ones load them from numba's cache)
+    steps: dict[str, tuple[int, ...]] = {"study": ()}
+    if args.rays > 0:
+        steps["simulation"] = (args.resolution,)
+    with demo.CompileAhead(steps if args.compile_ahead else {}) as ahead:
+        return _demo_steps(args, demo, out, orders, study_orders, ahead)
+
+
+def _demo_steps(args: argparse.Namespace, demo: Any, out: Path, orders: tuple[int, ...],
+                study_orders: tuple[int, ...], ahead: Any) -> int:
     print("scatmodes demo: orthonormal bases for BRDFs\n")
     print("1. Each basis evaluated at random directions; orthonormality error = max |G - I| "
           "of")
@@ -270,9 +287,10 @@ def _demo(args: argparse.Namespace) -> int:
     png = demo.plot_modes(out / "modes.png", order=4)
     print(f"\nwrote {png} (the isotropic modes up to order 4 at theta_i = 45 deg)\n")
 
+    ahead.wait("study")
     print("2. Two built-in models projected at orders "
-          f"{', '.join(map(str, study_orders))} (f cos cos, quadrature); errors against the "
-          "model itself.")
+          f"{', '.join(map(str, study_orders))} (f cos cos, quadrature to relative tolerance "
+          f"{demo.STUDY_TOL:g}); errors against the model itself.")
     print("resolution = 180 deg / order, the half period of the highest degree kept; l2 = "
           "relative L2 error over H x H.\n")
     rows, md = [], []
@@ -288,6 +306,7 @@ def _demo(args: argparse.Namespace) -> int:
           f"{', '.join(str(out / f'study-{n}.png') for n, _ in items)}\n")
 
     if args.rays > 0:
+        ahead.wait("simulation")
         print(f"3. Monte Carlo microgeometry: {args.rays} rays through a Gaussian surface "
               "(sigma/tau = 1/6.5, mirror facets), HemiZernike(8), against Beckmann + Smith.\n")
         sim = demo.simulate_demo(rays=args.rays, resolution=args.resolution, seed=1,
@@ -845,6 +864,22 @@ def _add_dask(p: argparse.ArgumentParser, workers: str, scheduler: str) -> None:
                       help=f"{scheduler}, e.g. tcp://host:8786 (needs scatmodes[distributed])")
 
 
+class _Version(argparse.Action):
+    """``--version``: the distribution's version, looked up only when asked for."""
+
+    def __init__(self, option_strings: list[str], dest: str = argparse.SUPPRESS,
+                 default: str = argparse.SUPPRESS, help: str | None = None) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=default, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        # importlib.metadata (behind basis.__version__) takes ~0.1 s to import: not for --help
+        from basis import __version__
+
+        print(f"scatmodes {__version__}")  # on stdout, as argparse's own version action
+        parser.exit()
+
+
 def _add_progress(p: argparse.ArgumentParser) -> None:
     p.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
                    help="show progress bars (default: when stderr is a terminal)")
@@ -861,9 +896,7 @@ def _parser() -> argparse.ArgumentParser:
                "CookTorrance --param kd=0.2 --param roughness=0.3 --orders 2,4,8\n\n"
                "Errors print one line and exit with status 2. 'scatmodes COMMAND --help' "
                "for each command.")
-    from basis import __version__
-
-    p.add_argument("--version", action="version", version=f"scatmodes {__version__}")
+    p.add_argument("--version", action=_Version, help="show the version and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
     d = sub.add_parser(
@@ -888,6 +921,9 @@ def _parser() -> argparse.ArgumentParser:
                    help="rays of the simulation, 0 to skip it (default %(default)s)")
     d.add_argument("--resolution", type=_count, default=64,
                    help="height-field grid points per side (default %(default)s)")
+    d.add_argument("--compile-ahead", action=argparse.BooleanOptionalAction, default=True,
+                   help="on a first run, compile the kernels of the later steps in a second "
+                        "process while the first step runs (default: yes)")
     _add_progress(d)
     d.set_defaults(func=_demo)
 
@@ -1122,8 +1158,10 @@ def _parser() -> argparse.ArgumentParser:
     add_benchmark(sub, fmt, _add_progress, _progress, _dask_client)
 
     from .render import add_parser as add_render
+    from .report import add_parser as add_report
 
     add_render(sub, fmt, _add_progress, _progress)
+    add_report(sub, fmt, _add_progress, _progress)
 
     i = sub.add_parser("info", formatter_class=fmt,
                        help="versions, threads, limits, models; or what FILE holds",

@@ -7,9 +7,10 @@ import functools
 import sys
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import numpy as np
+if TYPE_CHECKING:  # numpy loads when the command runs: --help stays instant
+    import numpy as np
 
 __all__ = ["add_parser", "run"]
 
@@ -119,6 +120,8 @@ def _render(cmi: Any, material: Any, size: int, spp: int, bar: Any) -> np.ndarra
 
 
 def _write(mi: Any, image: np.ndarray, png: Path, exr: Path, *, scale: float = 1.0) -> None:
+    import numpy as np
+
     from project.io import atomic_path
 
     data = np.ascontiguousarray(image, dtype=np.float32)
@@ -131,6 +134,8 @@ def _write(mi: Any, image: np.ndarray, png: Path, exr: Path, *, scale: float = 1
 def run(args: argparse.Namespace, *,
         wants_progress: Callable[[argparse.Namespace], bool]) -> int:
     """Render FILE (and the reference), write the images, print what was written."""
+    import numpy as np
+
     out = Path(args.output)
     if out.suffix.lower() != ".png":
         raise ValueError(f"-o must name a .png file (OUT.exr is written beside it), got "

@@ -41,3 +41,79 @@ def test_resolution_and_markdown():
                        "gap": float("nan")}])
     assert md.splitlines() == ["| basis | error | ns per value | gap |", "|---|---|---|---|",
                                "| Z(2) | 1.50e-16 | 3.2 | - |"]
+
+
+# -- the model study's tolerance and the compilation in a second process -----------------
+def test_study_tol_changes_no_printed_digit():
+    # reference: the same study at project's default tolerance for models, 1e-6; the demo
+    # prints l2 with three significant digits, and 1e-4 moves it by < 1e-5 (observed 1e-7)
+    from compress.cli.demo import STUDY_TOL, demo_models, model_study
+
+    phong = demo_models()["phong"]
+    fast, exact = model_study(phong, (2, 4), tol=STUDY_TOL), model_study(phong, (2, 4), tol=1e-6)
+    for a, b in zip(fast.rows, exact.rows, strict=True):
+        assert (a["kind"], a["order"]) == (b["kind"], b["order"])
+        assert abs(a["l2"] - b["l2"]) <= 1e-5 * b["l2"], (a["kind"], a["order"])
+
+
+def test_compile_ahead_reports_each_step():
+    from compress.cli.demo import CompileAhead
+
+    with CompileAhead({"simulation": (16,)}) as ahead:
+        assert ahead.wait("study") is False  # not asked for
+        assert ahead.wait("simulation") is True
+        assert ahead.wait("simulation") is False  # already waited for
+
+
+def test_compile_ahead_failure_means_compile_in_place():
+    # negative control: an unknown step makes the process fail before printing its name
+    from compress.cli.demo import CompileAhead
+
+    with CompileAhead({"nonexistent": ()}) as ahead:
+        assert ahead.wait("nonexistent") is False
+    with CompileAhead({}) as ahead:  # nothing asked: no process at all
+        assert ahead._proc is None and ahead.wait("study") is False
+
+
+def _deterministic(out: str) -> list[str]:
+    """The demo's lines without wall times: tables without their timing column, sim facts."""
+    keep = []
+    for line in out.splitlines():
+        if line.startswith("| ") and "|" in line[2:]:
+            cells = line.split("|")[1:-1]
+            keep.append("|".join(cells[:-1]))  # the last column is a time (ns)
+        elif line.startswith(("energy:", "relative L2", "measured Beckmann")):
+            keep.append(line)
+        elif "asymmetry Q" in line:
+            keep.append(line.rpartition("asymmetry")[2])
+    return keep
+
+
+def test_compile_ahead_gives_the_same_numbers(tmp_path, capsys):
+    # reference: the same demo with every kernel compiled (or loaded) in this process
+    from compress.cli import main
+
+    argv = ["demo", "--orders", "2", "--points", "200", "--study-orders", "2", "--rays",
+            "2000", "--resolution", "16", "--no-progress"]
+    outs = []
+    for flag in ("--compile-ahead", "--no-compile-ahead"):
+        assert main([*argv, "--out", str(tmp_path / flag), flag]) == 0
+        outs.append(_deterministic(capsys.readouterr().out))
+    assert len(outs[0]) >= 12 and any("asymmetry" not in x and "Q =" in x for x in outs[0])
+    assert outs[0] == outs[1]
+
+
+def test_simulation_is_compared_with_the_model_in_its_own_quantity():
+    # Westin, Arvo & Torrance (1992, fig. 6): a lossless mirror Gaussian surface is close to
+    # Beckmann + Smith (F = 1); the model omits only multiple scattering (here ~4 % of the
+    # energy), so the matrices of f cos cos agree in M_00 to that share, and their distance
+    # is the order-8 truncation of the model (~14 %) plus Monte Carlo noise, far below the
+    # ~0.9 of comparing an f matrix with an f cos cos one
+    from compress.cli.demo import simulate_demo
+
+    out = simulate_demo(rays=20_000, resolution=48)
+    sim, ref = out["result"].matrix, out["curves"]["same, order 8"]
+    assert sim.quantity == ref.quantity == "f_cos"
+    assert sim.matrix[0, 0] == pytest.approx(0.5, abs=1e-3)  # lossless: albedo 1, exactly
+    assert ref.matrix[0, 0] == pytest.approx(0.5, rel=0.1)
+    assert out["difference"] < 0.3
