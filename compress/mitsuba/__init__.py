@@ -40,12 +40,15 @@ by default, where arrays hold no values yet: render such scenes with :func:`rend
 
 Importance sampling
 -------------------
-``sample`` draws from a mixture of cosine-weighted hemisphere sampling and one lobe, and
-``pdf`` returns that mixture's exact density (:class:`LobeSampler`, chosen by
-:func:`sampler_for`): visible-normal sampling of the GGX or Beckmann lobe of a fitted
-microfacet model (or of a hybrid's microfacet lobe), a GGX lobe fitted at load time to the
-half-vector profile of a coefficient matrix, and a tabulated inverse CDF over theta_h for
-factored and tabulated models (and any other BRDF). Mitsuba's chi-square test
+``sample`` draws from the sampler :func:`sampler_for` chooses at load time and ``pdf``
+returns its exact density. The candidates are a mixture of cosine-weighted hemisphere
+sampling and one lobe (:class:`LobeSampler`: visible-normal sampling of the GGX or Beckmann
+lobe of a fitted microfacet model or of a hybrid's microfacet lobe, a GGX lobe fitted to the
+half-vector profile of a coefficient matrix, a tabulated inverse CDF over theta_h for any
+other BRDF), a density of w_o tabulated from the representation per bin of theta_i and mixed
+with cosine (``TableSampler``, isotropic representations), an even mixture of the two and
+cosine alone; the one whose weights vary least on a fixed pilot set wins. Mitsuba's
+chi-square test
 (``mitsuba.chi2``) checks that sampling and density agree
 (``tests/compress/test_mitsuba.py``); ``tests/benchmarks/bench_mitsuba.py`` compares the
 variance against pure cosine sampling and against Mitsuba's ``measured`` plugin.

@@ -14,7 +14,7 @@ import mitsuba as mi
 import numpy as np
 from numpy.typing import NDArray
 
-from ._sampling import LobeSampler, sampler_for
+from ._sampling import LobeSampler, MixtureSampler, TableSampler, sampler_for
 
 __all__ = ["INCIDENT", "PLUGIN", "ClampStats", "bsdf", "evaluated", "register", "render",
            "negative_fraction", "representation", "set_default_variant"]
@@ -151,7 +151,7 @@ def bsdf(rep: Any, *, incident: str = "light") -> Any:
     -------
     mitsuba.BSDF
         Usable as the ``bsdf`` of a shape in ``mi.load_dict``; its ``stats`` attribute is
-        a :class:`ClampStats`, ``sampler`` its :class:`~compress.mitsuba.LobeSampler`.
+        a :class:`ClampStats`, ``sampler`` what :func:`~compress.mitsuba.sampler_for` chose.
     """
     cls = register()
     props = mi.Properties(PLUGIN)
@@ -271,7 +271,8 @@ def _make_class() -> type:
             self.rep = rep
             self.incident = incident
             self.stats = ClampStats()
-            self.sampler: LobeSampler = sampler_for(rep)
+            self.sampler: LobeSampler | TableSampler | MixtureSampler = sampler_for(
+                rep, incident=incident)
             self.m_components = [flags]
             self.m_flags = flags
 

@@ -9,8 +9,10 @@ the files of ``../shared/data/rgl`` when present), the material is compressed to
 ``llvm_ad_rgb``:
 
 - ours: ``compress.mitsuba.bsdf(model, incident="camera")`` (the reading of ``measured``),
-  sampled by its mixture of cosine and tabulated half-vector lobe;
-- ours with pure cosine-weighted hemisphere sampling (the same BSDF, sampler replaced);
+  sampled by what ``compress.mitsuba.sampler_for`` chooses (for these tables the density of
+  w_o tabulated per bin of theta_i, mixed with cosine);
+- the same BSDF with the cosine + theta_h-lobe mixture that the table competes with
+  ("lobe"), and with pure cosine-weighted hemisphere sampling ("cosine");
 - Mitsuba's ``measured`` plugin on the file itself (its sampling warps through the
   file's VNDF and luminance tables, Dupuy & Jakob 2018).
 
@@ -49,6 +51,7 @@ import mitsuba as mi  # noqa: E402
 mi.set_variant("llvm_ad_rgb")
 
 import compress.mitsuba as cmi  # noqa: E402
+from compress.mitsuba._sampling import _lobe_sampler  # noqa: E402
 from project import FittedModel  # noqa: E402
 from project.measured import read_rgl  # noqa: E402
 from project.tabulated import tabulate  # noqa: E402
@@ -108,11 +111,14 @@ def main() -> None:
     for path in files:
         tab = FittedModel("tabulated", tabulate(read_rgl(path), bins).params)
         ours = cmi.bsdf(tab, incident="camera")
+        lobe = cmi.bsdf(tab, incident="camera")
+        lobe.sampler = _lobe_sampler(tab)
         cosine = cmi.bsdf(tab, incident="camera")
         cosine.sampler = cmi.LobeSampler("cosine")
         measured = mi.load_dict({"type": "measured", "filename": str(path)})
         compare(f"{path.name}: {ours.sampler!r}",
-                {"ours": ours, "cosine": cosine, "measured": measured}, angles, n)
+                {"ours": ours, "lobe": lobe, "cosine": cosine, "measured": measured},
+                angles, n)
         t_ours, t_meas = seconds(ours, n, args.repeats), seconds(measured, n, args.repeats)
         print(f"time per sample: ours {1e9 * t_ours / n:.0f} ns, measured "
               f"{1e9 * t_meas / n:.0f} ns, ratio measured/ours {t_meas / t_ours:.3g}")
