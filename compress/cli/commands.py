@@ -434,7 +434,7 @@ def _convert(args: argparse.Namespace) -> int:
         table=args.file, label="FILE", output=args.output, format="auto", angles=None,
         channels=None, wavelengths=None, model=None, basis=args.basis, order=args.order,
         quantity="f" if args.quantity == "auto" else args.quantity, isotropic=None,
-        regularization="auto", penalty=None, modal_defaults={},
+        reciprocal=True, regularization="auto", penalty=None, modal_defaults={},
         note="measurements: fitted by least squares as 'scatmodes fit' does (its options: "
              "'scatmodes fit --help')",
         not_text="is neither a MERL .binary, an RGL .bsdf nor a measurement text file",
@@ -451,7 +451,8 @@ _FIT_ANGLES = ("degrees", "radians")
 _FIT_FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "dsbrdf", "rr8807")
 #: Options of the modal fit, refused with --model (when changed from their defaults), and
 #: options of --model (``fit_model``'s), refused without it.
-_MODAL_OPTIONS = ("basis", "order", "quantity", "isotropic", "regularization", "penalty")
+_MODAL_OPTIONS = ("basis", "order", "quantity", "isotropic", "reciprocal", "regularization",
+                  "penalty")
 _MODEL_OPTIONS = ("seed", "restarts", "lobes", "max_nfev", "folds")
 
 
@@ -597,7 +598,8 @@ def _fit(args: argparse.Namespace) -> int:
         isotropic = meas.isotropic is not False
     t0 = time.perf_counter()
     cm = fit(meas, b, quantity=args.quantity, isotropic=isotropic,
-             regularization=args.regularization, penalty=args.penalty)
+             regularization=args.regularization, penalty=args.penalty,
+             reciprocal=args.reciprocal)
     seconds = time.perf_counter() - t0
     cm.info.setdefault("source", f"fit to {Path(args.table).name}")
     save(cm, out)
@@ -1040,6 +1042,10 @@ def _parser() -> argparse.ArgumentParser:
     f.add_argument("--isotropic", action=argparse.BooleanOptionalAction, default=None,
                    help="fit only the isotropic blocks (default: yes, unless the file states "
                         "anisotropic data)")
+    f.add_argument("--reciprocal", action=argparse.BooleanOptionalAction, default=True,
+                   help="fit a symmetric matrix, reciprocal by construction (default); "
+                        "--no-reciprocal fits a general one, for data that 'scatmodes info' "
+                        "shows are not reciprocal (about twice the unknowns)")
     f.add_argument("--regularization", type=_fit_regularization, default="auto",
                    metavar="{auto,gcv,leave-incidence-out,LAMBDA}",
                    help="how to choose the Tikhonov weight (auto: 10-fold cross-validation "

@@ -147,6 +147,35 @@ def test_fit_recovers_lambert(tmp_path, capsys, rng):
     assert load(path).info["regularization_method"] == "10-fold CV on direction pairs"
 
 
+def test_fit_no_reciprocal_recovers_a_general_matrix(tmp_path, capsys, rng):
+    # independent reference: a known non-symmetric matrix, evaluated by CoefficientMatrix.eval
+    from basis import CoefficientMatrix, HemiZernike, from_angles
+
+    zb = HemiZernike(2)
+    sizes = [c.size for c in zb.azimuthal_blocks().cos]
+    blocks = [np.abs(rng.normal(size=(k, k))) + (2.0 if m == 0 else 0.0)
+              for m, k in enumerate(sizes)]
+    truth = CoefficientMatrix.from_blocks(zb, blocks, "f", reciprocal=False)
+    n = 200
+    deg = np.column_stack([rng.uniform(0, 85, n), rng.uniform(0, 360, n),
+                           rng.uniform(0, 85, n), rng.uniform(0, 360, n)])
+    wi, wo = from_angles(*np.radians(deg[:, :2]).T), from_angles(*np.radians(deg[:, 2:]).T)
+    table = tmp_path / "general.txt"
+    np.savetxt(table, np.column_stack([deg, truth.eval(wi, wo)]), fmt="%.18e")
+    path = tmp_path / "fit.h5"
+    status, out, err = run(capsys, "fit", str(table), "--order", "2", "--no-reciprocal",
+                           "-o", str(path))
+    assert status == 0, err
+    got = load(path)
+    assert not got.reciprocal and "rank 6 of 6 unknowns" in out  # blocks of sizes 2, 1, 1
+    # exact data in the span: rounding of the %.18e text and of the solve
+    np.testing.assert_allclose(got.matrix[0], truth.matrix, rtol=0, atol=1e-10)
+    # with --model the option is refused like the other modal options
+    status, _, err = run(capsys, "fit", str(table), "--model", "lambert+ggx", "--no-reciprocal",
+                         "-o", str(path))
+    assert status == 2 and "reciprocal" in err and "modal fit" in err
+
+
 def test_fit_regularises_a_rank_deficient_table(tmp_path, capsys, rng):
     # every incidence at the pole: only the m = 0 functions of w_i are seen (rank 3 of 14 at
     # order 4), so the plain fit warns and the default regularises without a warning
