@@ -73,3 +73,34 @@ def cell_trilinear(t, i0, j0, k0, k1, tu, tv, tw, c):  # pragma: no cover - comp
     hi = ((1.0 - tv) * ((1.0 - tw) * t[i0 + 1, j0, k0, c] + tw * t[i0 + 1, j0, k1, c])
           + tv * ((1.0 - tw) * t[i0 + 1, j0 + 1, k0, c] + tw * t[i0 + 1, j0 + 1, k1, c]))
     return (1.0 - tu) * lo + tu * hi
+
+
+@njit(inline="always")
+def half_difference_unit(ix, iy, iz, ox, oy, oz, fold):  # pragma: no cover - compiled
+    """Return theta_h, theta_d, phi_d of a pair given as normalised components.
+
+    The arithmetic of :func:`half_difference` after its normalisation, operation for
+    operation, so a caller that normalises as it does (x / sqrt(x ** 2 + y ** 2 + z ** 2))
+    gets the same bits; it lets a kernel normalise a direction shared by many pairs once.
+    """
+    hx, hy, hz = ix + ox, iy + oy, iz + oz
+    dx, dy, dz = ix - ox, iy - oy, iz - oz
+    r = math.sqrt(hx * hx + hy * hy)
+    hn = math.sqrt(r * r + hz * hz)
+    if hn > 0.0:
+        theta_h = math.atan2(r, hz)
+        ct, st = hz / hn, r / hn
+    else:
+        theta_h = 0.0
+        ct, st = 1.0, 0.0
+    if r > 0.0:
+        cp, sp = hx / r, hy / r
+    else:
+        cp, sp = 1.0, 0.0
+    theta_d = math.atan2(math.sqrt(dx * dx + dy * dy + dz * dz), hn)
+    a = ct * (cp * dx + sp * dy) - st * dz + 0.0
+    b = cp * dy - sp * dx + 0.0
+    if fold and (b < 0.0 or (b == 0.0 and a < 0.0)):
+        a = -a
+        b = -b
+    return theta_h, theta_d, math.atan2(b, a)

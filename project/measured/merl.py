@@ -101,10 +101,16 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 from basis.directions import from_rusinkiewicz
-from basis.jit import pjit, prange
+from basis.jit import njit, pjit, prange
 from basis.validation import choice
 
-from .._halfdiff import cell, cell_trilinear, half_difference, periodic_cell
+from .._halfdiff import (
+    cell,
+    cell_trilinear,
+    half_difference,
+    half_difference_unit,
+    periodic_cell,
+)
 from ..brdf import BRDF
 from ..io import atomic_path
 from ._files import as_path, input_file, output_file
@@ -277,6 +283,21 @@ class MERLBRDF(BRDF):
         _merl_lookup_kernel(wi, wo, self._lut, self._interpolation == "trilinear", out)
         return out
 
+    def _isotropic_sums(self, sti, zi, sto, zo, cd, sd, scale, cosr, raw, sums, sq) -> bool:
+        """Azimuthal sums of the table on an isotropic product rule, read and summed at once.
+
+        For :func:`project.project`: pair p is w_i = (sti_p, 0, zi_p) and, at azimuth j,
+        w_o = (sto_p cd_j, -sto_p sd_j, zo_p); with v = f scale_p it writes
+        sums[p, c, m] = sum_j cosr[j, m] v and sq[p, c] = sum_j raw_j v^2. The values are
+        those of :meth:`eval`, bit for bit. Returns False (nothing done) for a subclass that
+        evaluates otherwise.
+        """
+        if type(self)._eval is not MERLBRDF._eval:
+            return False
+        _merl_isotropic_kernel(sti, zi, sto, zo, cd, sd, self._lut,
+                               self._interpolation == "trilinear", scale, cosr, raw, sums, sq)
+        return True
+
     def __repr__(self) -> str:
         return (f"MERLBRDF(name={self.name!r}, interpolation={self._interpolation!r}, "
                 f"valid_fraction={self.valid_fraction:.4f})")
@@ -299,32 +320,73 @@ def _filled_lookup_table(table: NDArray[np.float64],
     return lut
 
 
+@njit(inline="always")
+def _merl_value(lut, theta_h, theta_d, phi_d, trilinear, out):  # pragma: no cover - compiled
+    # out (c,): the table at folded Rusinkiewicz angles (module notes: Interpolation)
+    nc = lut.shape[3]
+    nh, nd, npd = lut.shape[0], lut.shape[1], lut.shape[2]
+    u = math.sqrt(theta_h / (0.5 * math.pi)) * nh
+    v = theta_d / (0.5 * math.pi) * nd
+    w = phi_d / math.pi * npd
+    if trilinear:
+        i0, tu = cell(u, nh)
+        j0, tv = cell(v, nd)
+        k0, k1, tw = periodic_cell(w, npd)
+        for c in range(nc):
+            out[c] = cell_trilinear(lut, i0, j0, k0, k1, tu, tv, tw, c)
+    else:
+        i = min(int(u + 0.5), nh - 1)
+        j = min(int(v + 0.5), nd - 1)
+        k = int(w + 0.5) % npd
+        for c in range(nc):
+            out[c] = lut[i, j, k, c]
+
+
 @pjit
 def _merl_lookup_kernel(wi, wo, lut, trilinear, out):  # pragma: no cover - compiled
     # wi, wo: (n, 3) unit vectors with z >= 0; lut: (90, 90, 180, c) filled table;
     # out: (n, c). Rusinkiewicz coordinates from h = wi + wo and d = wi - wo, both symmetric
     # (d antisymmetric) under wi <-> wo, so the folded phi_d and the result are exactly
     # reciprocal.
-    n = wi.shape[0]
-    nc = lut.shape[3]
-    nh, nd, npd = lut.shape[0], lut.shape[1], lut.shape[2]
-    for p in prange(n):
+    for p in prange(wi.shape[0]):
         theta_h, theta_d, phi_d, _, _ = half_difference(wi, wo, p, True)
-        u = math.sqrt(theta_h / (0.5 * math.pi)) * nh
-        v = theta_d / (0.5 * math.pi) * nd
-        w = phi_d / math.pi * npd
-        if trilinear:
-            i0, tu = cell(u, nh)
-            j0, tv = cell(v, nd)
-            k0, k1, tw = periodic_cell(w, npd)
+        _merl_value(lut, theta_h, theta_d, phi_d, trilinear, out[p])
+
+
+@pjit
+def _merl_isotropic_kernel(sti, zi, sto, zo, cd, sd, lut, trilinear, scale, cosr, raw, sums,
+                           sq):  # pragma: no cover - compiled
+    # The table at the pairs w_i = (sti_p, 0, zi_p), w_o = (sto_p cd_j, -sto_p sd_j, zo_p) of
+    # an isotropic product rule, summed over the azimuths j as they are read, so no direction
+    # or value array is formed: sums[p, c, m] = sum_j cosr[j, m] v, sq[p, c] = sum_j raw_j v^2
+    # with v = f_c scale_p. Directions, normalisation and Rusinkiewicz angles are those of
+    # _merl_lookup_kernel (half_difference) operation for operation, w_i normalised once per
+    # pair: the values are the bits of eval at those directions.
+    nj, nm, nc = cd.size, cosr.shape[1], lut.shape[3]
+    for p in prange(sti.size):
+        acc = np.zeros((nc, nm))
+        s2 = np.zeros(nc)
+        val = np.empty(nc)
+        a0, a2 = sti[p], zi[p]
+        ni = math.sqrt(a0 ** 2 + 0.0 ** 2 + a2 ** 2)
+        ix, iy, iz = a0 / ni, 0.0 / ni, a2 / ni
+        for j in range(nj):
+            b0 = sto[p] * cd[j]
+            b1 = -sto[p] * sd[j]
+            b2 = zo[p]
+            no = math.sqrt(b0 ** 2 + b1 ** 2 + b2 ** 2)
+            theta_h, theta_d, phi_d = half_difference_unit(ix, iy, iz, b0 / no, b1 / no,
+                                                           b2 / no, True)
+            _merl_value(lut, theta_h, theta_d, phi_d, trilinear, val)
             for c in range(nc):
-                out[p, c] = cell_trilinear(lut, i0, j0, k0, k1, tu, tv, tw, c)
-        else:
-            i = min(int(u + 0.5), nh - 1)
-            j = min(int(v + 0.5), nd - 1)
-            k = int(w + 0.5) % npd
-            for c in range(nc):
-                out[p, c] = lut[i, j, k, c]
+                v = val[c] * scale[p]
+                s2[c] += raw[j] * v * v
+                for m in range(nm):
+                    acc[c, m] += cosr[j, m] * v
+        for c in range(nc):
+            for m in range(nm):
+                sums[p, c, m] = acc[c, m]
+            sq[p, c] = s2[c]
 
 
 def read_merl(path: str | os.PathLike, *, interpolation: str = "trilinear") -> MERLBRDF:

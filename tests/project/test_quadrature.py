@@ -764,3 +764,113 @@ def test_diagonal_rule_refines_across_the_ridge_on_its_own():
         np.testing.assert_allclose(0.5 * (g + g.swapaxes(0, 1)), 0.5 * (r + r.swapaxes(0, 1)),
                                    rtol=0, atol=1e-13 * scale)
 
+
+
+class Ridge(BRDF):
+    """1 + a G (1 - cos dphi) / 2 with G = exp(-((z_i - z_o) / w)^2): a ridge on z_i = z_o.
+
+    Only F_0 = 2 pi + a G pi and F_1 = -a G pi / 2 are non-zero, so its coefficients are
+    2-D integrals that panel Gauss rules resolve (:func:`ridge_reference`).
+    """
+
+    channels, isotropic, _scalar = 1, True, True
+
+    def __init__(self, width, height=50.0):
+        self.w, self.a = width, height
+
+    def _eval(self, wi, wo):
+        g = np.exp(-(((wi[:, 2] - wo[:, 2]) / self.w) ** 2))
+        s = np.sqrt((1.0 - wi[:, 2] ** 2) * (1.0 - wo[:, 2] ** 2))
+        dot = wi[:, 0] * wo[:, 0] + wi[:, 1] * wo[:, 1]
+        cos = np.divide(dot, s, out=np.zeros_like(s), where=s > 0)
+        return (1.0 + self.a * g * 0.5 * (1.0 - cos))[:, None]
+
+
+def _panels(edges, n):
+    t, w = _z_nodes(n, "gauss")
+    keep = edges[1:] > edges[:-1]
+    a, b = edges[:-1][keep, None], edges[1:][keep, None]
+    return (a + (b - a) * t).ravel(), ((b - a) * w).ravel()
+
+
+def ridge_reference(basis, brdf):
+    """Dense matrix of Ridge by composite Gauss-Legendre (20 nodes per panel) in z_o and,
+    for each z_o, in z_i with panels ending at z_o +- w (1, 2, 4, 8); no diagonal rule."""
+    w, az = brdf.w, basis.azimuthal
+    near = w * np.array([1.0, 2.0, 4.0, 8.0, 16.0])
+    zo, wo = _panels(np.concatenate([[0.0], near, [0.5], 1.0 - near[::-1], [1.0]]), 20)
+    f0, f1 = np.zeros((basis.size, basis.size)), np.zeros((basis.size, basis.size))
+    po = basis.radial(zo)
+    for k in range(zo.size):
+        e = np.clip(zo[k] + w * np.array([-8, -4, -2, -1, 0, 1, 2, 4, 8]), 0.0, 1.0)
+        zi, wi = _panels(np.unique(np.concatenate([[0.0], e, [1.0]])), 20)
+        g = np.exp(-(((zi - zo[k]) / w) ** 2))
+        pi = basis.radial(zi)
+        f0 += wo[k] * np.outer((wi * (2.0 * np.pi + brdf.a * g * np.pi)) @ pi, po[k])
+        f1 += wo[k] * np.outer((wi * (-brdf.a * g * np.pi / 2.0)) @ pi, po[k])
+    same = az[:, None] == az[None, :]
+    return (np.where(same & (az[:, None] == 0), 2.0 * np.pi * f0, 0.0)
+            + np.where(same & (np.abs(az[:, None]) == 1), np.pi * f1, 0.0))
+
+
+@pytest.mark.filterwarnings("ignore:the expansion of Ridge")  # order 8 misses the ridge
+def test_combination_of_diagonal_rules_is_bounded_by_its_estimate():
+    # A ridge 0.003 wide in z_i - z_o (blue-acrylic's is about as wide) takes the diagonal
+    # rule and, at tol 1e-7, a combination of rules (info["combination"]). Its estimate must
+    # bound the error against the panel reference, which agrees with itself with 40 nodes
+    # per panel to 3e-10 (the estimate here is ~3e-8, the error ~5e-11).
+    zb = HemiZernike(8)
+    brdf = Ridge(0.003)
+    cm = project(brdf, zb, tol=1e-7)
+    info = cm.info
+    ref = ridge_reference(zb, brdf)
+    err = np.max(np.abs(cm.matrix - ref)) / np.max(np.abs(ref))
+    assert info["z_rule"] == "diagonal" and " - " in info["combination"]
+    assert info["converged"]
+    assert err <= info["rel_error"]
+    assert info["rel_error"] <= 1e-7
+
+
+def test_phi_estimate_takes_a_third_only_under_second_order_convergence():
+    from project.quadrature import _phi_estimate
+
+    def blocks(x):
+        return [np.full((2, 2, 1), x), np.zeros((1, 1, 1))]
+
+    # changes 1e-2 then 1e-4 (rate 100 >= 4): the finer rule's error is at most 1e-4 / 3
+    assert _phi_estimate((blocks(1e-4), blocks(1e-2))) == pytest.approx(1e-4 / 3, rel=1e-15)
+    # 3e-3 then 1e-3 (rate 3 < 4): no such bound, the change itself
+    assert _phi_estimate((blocks(1e-3), blocks(3e-3))) == 1e-3
+    # a single change (no quarter rule sampled): the change itself
+    assert _phi_estimate((blocks(1e-3), None)) == 1e-3
+    assert _phi_estimate((None, None)) == np.inf
+
+
+def test_radial_tables_and_block_reuse_change_nothing():
+    # Reference: the same diagonal rule with its radial tables recomputed for every call
+    # (TABLE_BYTES 0) and its blocks formed from F_m directly, pair by pair in numpy.
+    from project import quadrature as q
+
+    zb = HemiZernike(6)
+    brdf = Poly(0.0, scale=[1.0, 0.5, 2.0], reciprocal=False)
+    grid = q._IsoGrid(brdf, zb, "f", 12, "diagonal", fold=False, nd=8)
+    grid.sample(28)
+    blocks, _, _ = grid.result()
+    f = grid._sums * (2.0 / grid.half)
+    az = zb.azimuthal
+    pi_, po_ = zb.radial(grid.zi), zb.radial(grid.zo)
+    for m, b in enumerate(blocks):
+        a, c = pi_[:, az == m], po_[:, az == m]
+        cm = 2.0 * np.pi if m == 0 else np.pi
+        ref = cm * np.einsum("p,pj,pc,pk->jkc", grid.pw, a, f[:, :, m], c)
+        # sums of ~100 terms in another order: rounding ~1e-15 relative
+        np.testing.assert_allclose(b, ref, rtol=0, atol=1e-13 * np.max(np.abs(ref)))
+    saved = q.TABLE_BYTES
+    try:
+        q.TABLE_BYTES = 0
+        again = q._IsoGrid(brdf, zb, "f", 12, "diagonal", fold=False, nd=8)
+        again.sample(28)
+        for x, y in zip(again.result()[0], blocks, strict=True):
+            np.testing.assert_array_equal(x, y)
+    finally:
+        q.TABLE_BYTES = saved

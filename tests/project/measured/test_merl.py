@@ -536,3 +536,41 @@ def test_channel_without_valid_values():
 def test_read_bad_interpolation(tmp_path):
     with pytest.raises(ValueError, match="interpolation must be one of"):
         read_merl(tmp_path / "x.binary", interpolation="linear")
+
+
+@pytest.mark.parametrize("interpolation", ["trilinear", "nearest"])
+def test_isotropic_sums_are_eval_bit_for_bit(random_brdf, rng, interpolation):
+    # Reference: eval at the directions of the isotropic product rule, summed over the
+    # azimuths in the same order by project.quadrature's kernel. The fused kernel must give
+    # the same bits (same normalisation, angles and interpolation; same summation order).
+    from project.quadrature import _azimuth_raw, _azimuth_sums, _iso_directions
+
+    brdf = random_brdf.with_interpolation(interpolation)
+    zi, zo = rng.uniform(0.0, 1.0, 57), rng.uniform(0.0, 1.0, 57)
+    zi[:3], zo[:3] = [1.0, 0.3, 0.0], [1.0, 0.3, 0.5]  # the pole, w_i = w_o, the horizon
+    sti, sto = np.sqrt((1.0 - zi) * (1.0 + zi)), np.sqrt((1.0 - zo) * (1.0 + zo))
+    dphi, raw = _azimuth_raw(40, 6)
+    cd, sd = np.cos(dphi), np.sin(dphi)
+    cosr = raw[:, None] * np.cos(np.outer(dphi, np.arange(9)))
+    scale = zi * zo
+    sums, sq = np.empty((57, 3, 9)), np.empty((57, 3))
+    assert brdf._isotropic_sums(sti, zi, sto, zo, cd, sd, scale, cosr, raw, sums, sq)
+    wi, wo = _iso_directions(sti, zi, sto, zo, cd, sd)
+    q = brdf.eval(wi, wo).reshape(57, dphi.size, 3)
+    ref_sums, ref_sq = np.empty_like(sums), np.empty_like(sq)
+    _azimuth_sums(q, scale, cosr, raw, ref_sums, ref_sq)
+    np.testing.assert_array_equal(sums, ref_sums)
+    np.testing.assert_array_equal(sq, ref_sq)
+
+
+def test_isotropic_sums_defer_to_a_subclass_eval(random_brdf):
+    class Scaled(MERLBRDF):
+        def _eval(self, wi, wo):
+            return 2.0 * super()._eval(wi, wo)
+
+    brdf = Scaled(random_brdf.table)
+    z = np.array([0.5])
+    out = np.zeros((1, 3, 2))
+    # the fused kernel would skip the override: it must decline, and write nothing
+    assert not brdf._isotropic_sums(z, z, z, z, z, z, z, np.ones((1, 2)), z, out, out[:, :, 0])
+    assert not out.any()
