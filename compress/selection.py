@@ -55,6 +55,7 @@ import project
 from basis import CoefficientMatrix
 from basis.validation import as_directions, choice, nonneg_int
 from project.crossval import sample_errors
+from project.factored import reuse_samples
 from project.measurements import FOLDS
 from project.reciprocity import MIN_PAIRS
 from project.sampling import peak_resolving_pairs, value_errors
@@ -344,41 +345,43 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
 
     builds.sort(key=order)
     best: tuple[int, float, Any, dict] | None = None
-    for b in builds:
-        smallest = b.bytes(b.dtypes[0])
-        if best is not None and not exhaustive and smallest is not None \
-                and smallest >= best[0]:
-            b.rows = [_row(b, d, status=f"skipped: at least {b.bytes(d)} bytes, not fewer "
-                                        f"than the {best[0]} of {best[3]['label']}")
-                      for d in b.dtypes]
-            continue
-        start = time.perf_counter()
-        try:
-            with warnings.catch_warnings():
-                # a slow fit, or a fit worse than zero, is measured and reported in the table
-                warnings.simplefilter("ignore", RuntimeWarning)
-                measured = measure(b)
-        except (ValueError, RuntimeError, np.linalg.LinAlgError, MemoryError) as e:
-            b.rows = [_row(b, d, status=f"failed: {e}") for d in b.dtypes]
-            continue
-        seconds = time.perf_counter() - start
-        for d, (r, nbytes, err) in zip(b.dtypes, measured, strict=True):
-            if r is None:
-                b.rows.append(_row(b, d, status=f"failed: {err}"))
+    # the factored ladder fits one BRDF on a few rules: each is sampled once
+    with reuse_samples():
+        for b in builds:
+            smallest = b.bytes(b.dtypes[0])
+            if best is not None and not exhaustive and smallest is not None \
+                    and smallest >= best[0]:
+                b.rows = [_row(b, d, status=f"skipped: at least {b.bytes(d)} bytes, not fewer "
+                                            f"than the {best[0]} of {best[3]['label']}")
+                          for d in b.dtypes]
                 continue
-            row = _row(b, d, bytes=nbytes, seconds=seconds, status="measured", **err)
-            if judge is not None:
-                row["scene"] = judge(r)
-            row["error"] = row["scene"] if judge is not None else row[metric]
-            row["meets"] = bool(row["error"] <= tol)
-            b.rows.append(row)
-            if row["meets"] and (best is None or (nbytes, row["error"]) < best[:2]):
-                best = (nbytes, row["error"], r, row)
-        if progress:
-            measured = [r for r in b.rows if r["status"] == "measured"]
-            summary = ", ".join(f"{r['dtype']} {r['bytes']} B {r['error']:.4g}"
-                                for r in measured) or b.rows[-1]["status"]
-            print(f"select: {b.label} ({seconds:.1f} s): {summary}", flush=True)
+            start = time.perf_counter()
+            try:
+                with warnings.catch_warnings():
+                    # a slow fit, or a fit worse than zero, is measured and reported in the table
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    measured = measure(b)
+            except (ValueError, RuntimeError, np.linalg.LinAlgError, MemoryError) as e:
+                b.rows = [_row(b, d, status=f"failed: {e}") for d in b.dtypes]
+                continue
+            seconds = time.perf_counter() - start
+            for d, (r, nbytes, err) in zip(b.dtypes, measured, strict=True):
+                if r is None:
+                    b.rows.append(_row(b, d, status=f"failed: {err}"))
+                    continue
+                row = _row(b, d, bytes=nbytes, seconds=seconds, status="measured", **err)
+                if judge is not None:
+                    row["scene"] = judge(r)
+                row["error"] = row["scene"] if judge is not None else row[metric]
+                row["meets"] = bool(row["error"] <= tol)
+                b.rows.append(row)
+                if row["meets"] and (best is None or (nbytes, row["error"]) < best[:2]):
+                    best = (nbytes, row["error"], r, row)
+            if progress:
+                measured = [r for r in b.rows if r["status"] == "measured"]
+                summary = ", ".join(f"{r['dtype']} {r['bytes']} B {r['error']:.4g}"
+                                    for r in measured) or b.rows[-1]["status"]
+                print(f"select: {b.label} ({seconds:.1f} s): {summary}", flush=True)
     table = [row for b in (*builds, *excluded) for row in b.rows]
     table.sort(key=lambda r: (r["bytes"] is None, r["bytes"] or 0, r["label"]))
     how = measure.description

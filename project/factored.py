@@ -163,15 +163,19 @@ References
 
 from __future__ import annotations
 
+import contextlib
+import functools
 import math
 import time
 import warnings
+import weakref
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
 from numpy.polynomial.legendre import leggauss
 from numpy.typing import ArrayLike, NDArray
-from scipy.linalg import cho_factor, cho_solve
+from scipy.linalg.lapack import dpotrf, dpotrs
 from threadpoolctl import threadpool_limits
 
 from basis import from_rusinkiewicz
@@ -181,7 +185,7 @@ from .brdf import BRDF, as_color
 from .measured import MERLBRDF
 
 __all__ = ["COLORS", "D_WARPS", "PHI_TURNS", "WARPS", "FactoredLobe", "fit_factored",
-           "rusinkiewicz_rule"]
+           "reuse_samples", "rusinkiewicz_rule"]
 
 #: theta_h = (pi/2) s^p with s in [0, 1] uniform on the theta_h nodes: p of each warp
 #: (nodes dense near the specular direction theta_h = 0 for p > 1).
@@ -798,7 +802,7 @@ def _nnls(M: NDArray, c: NDArray, passive: NDArray[np.bool_] | None = None,
     for _ in range(5 * n + 10):
         x = np.zeros(n)
         if F.any():
-            x[F] = cho_solve(cho_factor(Ms[np.ix_(F, F)]), cs[F])
+            x[F] = _cholesky_solve(Ms if F.all() else Ms[np.ix_(F, F)], cs[F])
         y = Ms @ x - cs
         y[F] = 0.0
         bad = (F & (x < 0)) | (~F & (y < -tol))
@@ -816,6 +820,22 @@ def _nnls(M: NDArray, c: NDArray, passive: NDArray[np.bool_] | None = None,
     return np.maximum(x, 0.0) / d, F
 
 
+def _cholesky_solve(M: NDArray, b: NDArray) -> NDArray:
+    """Solve M x = b, M symmetric positive definite, by LAPACK's potrf and potrs.
+
+    What ``scipy.linalg.cho_solve(cho_factor(M), b)`` computes, without its checks and
+    copies: the steps solve a few thousand small systems per fit.
+    """
+    c, info = dpotrf(M, lower=False, clean=False)
+    if info > 0:
+        raise np.linalg.LinAlgError(f"{info}-th leading minor of the array is not positive "
+                                    "definite")
+    x, info = dpotrs(c, b, lower=False)
+    if info != 0:
+        raise ValueError(f"illegal value in argument {-info} of LAPACK potrs")
+    return x
+
+
 def _tridiag(n: int, r: int, d00: NDArray, d11: NDArray, d01: NDArray,
              periodic: bool) -> NDArray:
     """(n r, n r) normal matrix of piecewise-linear coefficients ordered (node, term).
@@ -824,12 +844,17 @@ def _tridiag(n: int, r: int, d00: NDArray, d11: NDArray, d01: NDArray,
     w h0 h1 X X^T over the samples whose left node is e (h0, h1 the two hat weights).
     """
     M = np.zeros((n, r, n, r))
-    e = np.arange(n if periodic else n - 1)
+    m = n if periodic else n - 1
+    e = np.arange(m)
     e1 = (e + 1) % n
-    np.add.at(M, (e, slice(None), e, slice(None)), d00[e])
-    np.add.at(M, (e1, slice(None), e1, slice(None)), d11[e])
-    np.add.at(M, (e, slice(None), e1, slice(None)), d01[e])
-    np.add.at(M, (e1, slice(None), e, slice(None)), np.swapaxes(d01[e], 1, 2))
+    diag = np.zeros((n, r, r))
+    diag[:m] += d00[:m]
+    diag[e1] += d11[:m]
+    every = np.arange(n)
+    M[every, :, every, :] = diag
+    # each (e, e1) pair occurs once per statement, so += adds every term
+    M[e, :, e1, :] += d01[:m]
+    M[e1, :, e, :] += np.swapaxes(d01[:m], 1, 2)
     return M.reshape(n * r, n * r)
 
 
@@ -909,38 +934,52 @@ class _Problem:
                 acc(e0, w * u * v)
             self.S0 = acc(e0, w * v) + acc(e1, w * u)
             self.Fe = np.stack([acc(e0, w * v * fc) + acc(e1, w * u * fc) for fc in f])
-            n_h, n_d = self.W.shape
-
-            def swap(x: NDArray) -> NDArray:  # cells (theta_h, theta_d) -> (theta_d, theta_h)
-                return np.ascontiguousarray(
-                    x.reshape(-1, n_h, n_d, n_phi).swapaxes(1, 2)).reshape(x.shape)
-
-            # per cell order: (S00 + S11, S01, S0, Fe), the sums the moments need
-            self._sums = {"h": (self.S00 + self.S11, self.S01, self.S0, self.Fe)}
-            self._sums["d"] = tuple(swap(x) for x in self._sums["h"])
+            # per cell, the sums that the moments of the term pairs need (see moments)
+            self._sums = np.concatenate([self.S00 + self.S11, self.S01], axis=1)
+            # per node, by the left node of a sample: the sums of the phi_d step
+            self._phi_sums = np.concatenate(
+                [self.S00, np.roll(self.S11, -1, axis=1), self.S01], axis=1)
 
     def moments(self, Cphi: NDArray | None) -> dict[str, Any]:
-        """Return the sums over phi_d of w c_k c_l, w c_k f and w c_k per cell, both orders.
+        """Return the sums over phi_d of w c_k c_l, w c_k f and w c_k per cell.
 
-        Keys: "Wklh" (N_h, N_d, r r), "Fkh" (C, N_h, N_d, r), "Wkh" (N_h, N_d, r) and the
-        same with theta_d first ("Wkld", ...); only {"plain": True} without a phi_d factor
-        (c_k = 1, where the steps use W and F).
+        Keys: "Wkl" (N_h, N_d, P), the pairs k <= l packed in the order of
+        :func:`_pairs`, "Fk" (C, N_h, N_d, r), "Wk" (N_h, N_d, r); only {"plain": True}
+        without a phi_d factor (c_k = 1, where the steps use W and F). The products
+        c_k c_l of the hat interpolants are those of the nodes (S00 + S11) plus those of
+        neighbouring nodes (S01), so one product of (cells, 2 n_phi) by (2 n_phi, P)
+        gives every pair; the pairs are symmetric in k, l, hence only k <= l.
         """
         if Cphi is None:
             return {"plain": True}
         r, n = Cphi.shape
+        iu, ju = _pairs(r)
         Cs = np.roll(Cphi, -1, axis=1)
-        cc = (Cphi[:, None, :] * Cphi[None, :, :]).reshape(r * r, n).T
-        cs = (Cphi[:, None, :] * Cs[None, :, :]).reshape(r * r, n).T
-        out: dict[str, Any] = {"plain": False}
-        for side, shape in (("h", self.W.shape), ("d", self.W.shape[::-1])):
-            s2, s01, s0, fe = self._sums[side]
-            x = (s01 @ cs).reshape(-1, r, r)
-            out["Wkl" + side] = (s2 @ cc + (x + np.swapaxes(x, 1, 2)).reshape(-1, r * r)
-                                 ).reshape(*shape, r * r)
-            out["Fk" + side] = (fe @ Cphi.T).reshape(-1, *shape, r)
-            out["Wk" + side] = (s0 @ Cphi.T).reshape(*shape, r)
-        return out
+        K = np.concatenate([Cphi[iu] * Cphi[ju], Cphi[iu] * Cs[ju] + Cphi[ju] * Cs[iu]],
+                           axis=1)
+        shape = self.W.shape
+        return {"plain": False,
+                "Wkl": (self._sums @ K.T).reshape(*shape, iu.size),
+                "Fk": (self.Fe @ Cphi.T).reshape(-1, *shape, r),
+                "Wk": (self.S0 @ Cphi.T).reshape(*shape, r)}
+
+
+@functools.lru_cache(maxsize=64)
+def _pairs(r: int) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Return the pairs (k, l), k <= l, of r terms: the packed order of symmetric blocks."""
+    iu, ju = np.triu_indices(r)
+    iu.setflags(write=False)
+    ju.setflags(write=False)
+    return iu, ju
+
+
+def _unpack(x: NDArray, r: int) -> NDArray:
+    """(..., P) packed pairs k <= l -> (..., r, r) symmetric."""
+    iu, ju = _pairs(r)
+    out = np.empty((*x.shape[:-1], r, r))
+    out[..., iu, ju] = x
+    out[..., ju, iu] = x
+    return out
 
 
 def _dense_hat(i0: NDArray, t: NDArray, n: int) -> NDArray:
@@ -958,40 +997,53 @@ def _side_step(prob: _Problem, mom: dict, side: str, G: NDArray, kd_free: bool, 
 
     G (C, N_other, r): the other side's factors at its nodes of the rule, times the term
     weights. The unknowns are ordered (node, term), so the normal matrix is block
-    tridiagonal, plus one row and column per kd.
+    tridiagonal, plus one row and column per kd. Shared tables have one normal matrix and
+    right-hand side, the sums over the channels, which are formed before the contractions
+    with the moments (they are linear in them).
     """
     if side == "h":
         (i0, t), n = prob.hat_h, prob.n_h
-        W, F = prob.W, prob.F
-        keys = ("Wklh", "Fkh", "Wkh")
+        sub, sub_c, sub_w = "ijk,jk->ik", "cijk,cjk->ik", "ijk,cjk->cik"
     else:
         (i0, t), n = prob.hat_d, prob.n_d
-        W, F = prob.W.T, prob.F.transpose(0, 2, 1)
-        keys = ("Wkld", "Fkd", "Wkd")
+        sub, sub_c, sub_w = "ijk,ik->jk", "cijk,cik->jk", "ijk,cik->cjk"
     C, _, r = G.shape
+    iu, ju = _pairs(r)
     onehot = np.zeros((n, i0.size))
     onehot[i0, np.arange(i0.size)] = 1.0
     u = 1.0 - t
-    blocks = []
-    for c in range(C):
-        g = G[c]
-        gg = (g[:, :, None] * g[:, None, :]).reshape(g.shape[0], r * r)
-        if mom["plain"]:
-            H, R, Wg = W @ gg, F[c] @ g, W @ g
-        else:
-            Wkl, Fk, Wk = (mom[k] for k in keys)
-            H = np.einsum("ijm,jm->im", Wkl, gg)
-            R = np.einsum("ijk,jk->ik", Fk[c], g)
-            Wg = np.einsum("ijk,jk->ik", Wk, g)
-        d00 = (onehot @ (H * (u * u)[:, None])).reshape(n, r, r)
-        d11 = (onehot @ (H * (t * t)[:, None])).reshape(n, r, r)
-        d01 = (onehot @ (H * (u * t)[:, None])).reshape(n, r, r)
-        M = _tridiag(n, r, d00, d11, d01, periodic=False)
-        kc = onehot @ (Wg * u[:, None])
-        kc[1:] += (onehot @ (Wg * t[:, None]))[:-1]
-        rc = onehot @ (R * u[:, None])
-        rc[1:] += (onehot @ (R * t[:, None]))[:-1]
-        blocks.append((M, rc.reshape(-1), kc.reshape(-1) / math.pi))
+    gg = G[:, :, iu] * G[:, :, ju]  # (C, N_other, P)
+    plain = mom["plain"]
+    if plain:
+        W = prob.W if side == "h" else prob.W.T
+        F = prob.F if side == "h" else prob.F.transpose(0, 2, 1)
+    else:
+        Wkl, Fk, Wk = mom["Wkl"], mom["Fk"], mom["Wk"]
+
+    def matrix(ggc: NDArray) -> NDArray:
+        H = W @ ggc if plain else np.einsum(sub, Wkl, ggc)
+        d = onehot @ np.concatenate([H * (u * u)[:, None], H * (t * t)[:, None],
+                                     H * (u * t)[:, None]], axis=1)
+        P = iu.size
+        return _tridiag(n, r, _unpack(d[:, :P], r), _unpack(d[:, P:2 * P], r),
+                        _unpack(d[:, 2 * P:], r), periodic=False)
+
+    def spread(x: NDArray) -> NDArray:  # per sample (..., k) -> per node of its hats
+        out = onehot @ (x * u[:, None])
+        out[1:] += (onehot @ (x * t[:, None]))[:-1]
+        return out.reshape(-1)
+
+    Wg = W @ G if plain else np.einsum(sub_w, Wk, G)  # (C, N_side, r)
+    kcs = [spread(x) / math.pi for x in Wg]
+    if shared:
+        R = sum(F[c] @ G[c] for c in range(C)) if plain else np.einsum(sub_c, Fk, G)
+        blocks = [(matrix(gg.sum(axis=0)), spread(R), kcs[0])]
+        blocks += [(0.0, 0.0, kc) for kc in kcs[1:]]
+    else:
+        blocks = []
+        for c in range(C):
+            R = F[c] @ G[c] if plain else np.einsum(sub, Fk[c], G[c])
+            blocks.append((matrix(gg[c]), spread(R), kcs[c]))
     xs, kd, passive, value = _solve(blocks, n * r, shared, kd_free, prob.W0, prob.F0, passive)
     return np.stack([x.reshape(n, r).T for x in xs], axis=-1), kd, passive, value
 
@@ -1008,15 +1060,17 @@ def _phi_step(prob: _Problem, X: NDArray, kd_free: bool, passive: list | None):
     """Solve for the phi_d tables C (r, n_phi), shared by the channels, and kd."""
     r, C, _ = X.shape
     n = prob.n_phi
-    XX = np.einsum("kcn,lcn->nkl", X, X).reshape(-1, r * r)
-    d00 = (prob.S00.T @ XX).reshape(n, r, r)
-    # S11 is grouped by the right node: re-index it by the left node e = right - 1
-    d11 = np.roll((prob.S11.T @ XX).reshape(n, r, r), -1, axis=0)
-    d01 = (prob.S01.T @ XX).reshape(n, r, r)
-    M = _tridiag(n, r, d00, d11, d01, periodic=True)
-    rhs = sum(prob.Fe[c].T @ X[:, c].T for c in range(C)).reshape(-1)
+    iu, ju = _pairs(r)
+    P = iu.size
+    XX = np.empty((P, X.shape[2]))  # the channels summed
+    for p in range(P):  # pair by pair: X[iu] would copy X P times over
+        np.einsum("cn,cn->n", X[iu[p]], X[ju[p]], out=XX[p])
+    d = (XX @ prob._phi_sums).reshape(P, 3, n)
+    M = _tridiag(n, r, _unpack(d[:, 0].T, r), _unpack(d[:, 1].T, r), _unpack(d[:, 2].T, r),
+                 periodic=True)
+    rhs = np.tensordot(prob.Fe, X, axes=([0, 1], [1, 2])).reshape(-1)
     blocks = [(M if c == 0 else 0.0, rhs if c == 0 else 0.0,
-               (prob.S0.T @ X[:, c].T).reshape(-1) / math.pi) for c in range(C)]
+               (X[:, c] @ prob.S0).T.reshape(-1) / math.pi) for c in range(C)]
     xs, kd, passive, value = _solve(blocks, n * r, True, kd_free, prob.W0, prob.F0, passive)
     return xs[0].reshape(n, r).T, kd, passive, value
 
@@ -1033,10 +1087,11 @@ def _weights_step(prob: _Problem, mom: dict, A: NDArray, B: NDArray, kd_free: bo
         rhs = prob.F.reshape(prob.F.shape[0], -1) @ pq
         kcol = Wf @ pq
     else:
-        Wkl = mom["Wklh"].reshape(-1, r, r)
-        M = np.einsum("nk,nl,nkl->kl", pq, pq, Wkl)
-        rhs = np.einsum("cnk,nk->ck", mom["Fkh"].reshape(-1, pq.shape[0], r), pq)
-        kcol = np.einsum("nk,nk->k", mom["Wkh"].reshape(-1, r), pq)
+        Wkl = mom["Wkl"].reshape(pq.shape[0], -1)
+        M = _unpack(np.array([np.einsum("n,n,n->", pq[:, k], pq[:, l], Wkl[:, p])
+                              for p, (k, l) in enumerate(zip(*_pairs(r), strict=True))]), r)
+        rhs = np.einsum("cnk,nk->ck", mom["Fk"].reshape(-1, pq.shape[0], r), pq)
+        kcol = np.einsum("nk,nk->k", mom["Wk"].reshape(-1, r), pq)
     blocks = [(M, rhs[c], kcol / math.pi) for c in range(rhs.shape[0])]
     xs, kd, _, value = _solve(blocks, r, False, kd_free, prob.W0, prob.F0, None)
     return np.stack(xs, axis=1), kd, value
@@ -1065,12 +1120,16 @@ def _quadratic(prob: _Problem, mom: dict, X: NDArray, kd: NDArray) -> float:
     """Sum of w (f - model)^2 from the moments of a phi_d factor (S - 2 cross + quad)."""
     r, C, N = X.shape
     k = kd / math.pi
-    Fk = mom["Fkh"].reshape(C, N, r)
-    Wk = mom["Wkh"].reshape(N, r)
-    Wkl = mom["Wklh"].reshape(N, r, r)
+    Fk = mom["Fk"].reshape(C, N, r)
+    Wk = mom["Wk"].reshape(N, r)
+    iu, ju = _pairs(r)
+    Wkl = mom["Wkl"].reshape(N, iu.size)
+    twice = np.where(iu == ju, 1.0, 2.0)  # the pairs k < l stand for (k, l) and (l, k)
     cross = k * prob.F0 + np.einsum("kcn,cnk->c", X, Fk)
-    quad = (k * k * prob.W0 + 2 * k * np.einsum("kcn,nk->c", X, Wk)
-            + np.einsum("kcn,lcn,nkl->c", X, X, Wkl, optimize=True))
+    pairs = np.zeros(C)
+    for p in range(iu.size):  # pair by pair: X[iu] would copy X P times over
+        pairs += np.einsum("cn,cn,n->c", X[iu[p]], X[ju[p]], Wkl[:, p] * twice[p])
+    quad = k * k * prob.W0 + 2 * k * np.einsum("kcn,nk->c", X, Wk) + pairs
     return float(np.sum(prob.S - 2 * cross + quad))
 
 
@@ -1132,6 +1191,75 @@ def _nndsvd(prob: _Problem, rank: int, rng: np.random.Generator) -> NDArray:
         b[small] = 1e-3 * rng.random(int(small.sum())) + 1e-6
         out[k] = b
     return out
+
+
+#: What fits inside :func:`reuse_samples` blocks share: (weak reference to the BRDF, key,
+#: value) for its samples on a rule and the sums of a fit on them; None outside a block.
+_SHARED: list[tuple[weakref.ref, tuple, Any]] | None = None
+#: Entries kept: the rules of the default ladder of ``compress.select`` are at most four.
+_SHARED_MAX = 8
+
+
+@contextlib.contextmanager
+def reuse_samples() -> Iterator[None]:
+    """Within the block, fits of one BRDF object on one rule evaluate it there only once.
+
+    :func:`fit_factored` evaluates the BRDF at every node of its rule
+    (:func:`rusinkiewicz_rule`) and sums the values per table cell. The rule depends on
+    the table nodes in theta_h and theta_d, ``warp``, ``warp_d``, ``samples`` and
+    ``phi_turn`` -- not on the rank or the phi_d nodes -- so a ladder of ranks, as
+    ``compress.select`` fits, needs only a few: inside the block the samples and sums of
+    each are kept and reused, and the fits are the same bit for bit (``info["evaluations"]``
+    is then 0). The BRDF must not change inside the block. Blocks nest.
+
+    Examples
+    --------
+    >>> from project.models import CookTorrance
+    >>> ct = CookTorrance(0.1, 0.2, "ggx", ior=1.5)
+    >>> with reuse_samples():
+    ...     one = fit_factored(ct, rank=1, bins=(16, 8))
+    ...     two = fit_factored(ct, rank=2, bins=(16, 8))
+    >>> one.info["evaluations"] > 0, two.info["evaluations"]
+    (True, 0)
+    """
+    global _SHARED
+    outer = _SHARED
+    if outer is None:
+        _SHARED = []
+    try:
+        yield
+    finally:
+        if outer is None:
+            _SHARED = None
+
+
+def _shared(brdf: Any, key: tuple) -> Any:
+    """Return what a fit of ``brdf`` inside :func:`reuse_samples` kept under ``key``, or None."""
+    for ref, k, value in _SHARED or ():
+        if k == key and ref() is brdf:
+            return value
+    return None
+
+
+def _share(brdf: Any, key: tuple, make: Callable[[], Any]) -> Any:
+    """Return ``make()``, or inside :func:`reuse_samples` what it returned for ``brdf``."""
+    value = _shared(brdf, key)
+    if value is not None:
+        return value
+    value = make()
+    if _SHARED is not None:
+        try:
+            ref = weakref.ref(brdf)
+        except TypeError:  # an object without weak references is not kept
+            return value
+        # read-only from here: a fit that wrote into shared arrays would change the next
+        for x in (value.values() if isinstance(value, dict) else vars(value).values()):
+            for a in (x if isinstance(x, tuple) else (x,)):
+                if isinstance(a, np.ndarray):
+                    a.setflags(write=False)
+        _SHARED.append((ref, key, value))
+        del _SHARED[:-_SHARED_MAX]
+    return value
 
 
 def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8),
@@ -1205,9 +1333,10 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
         Its ``info`` holds ``error`` (relative L2 error sqrt(E / int q^2) on the rule, the
         channels summed), ``error_channels``, ``floor`` (the error of the best
         phi_d-independent function: no model without a phi_d factor can go below it),
-        ``iterations``, ``converged``, ``seconds``, ``evaluations`` (of ``brdf.eval``),
-        ``skipped`` (the fraction of the weight at invalid MERL cells), ``reseeds``,
-        ``dead_terms``, ``history`` (the relative error after each sweep) and
+        ``iterations``, ``converged``, ``seconds``, ``evaluations`` (of ``brdf.eval``; 0
+        when an earlier fit's samples were reused, :func:`reuse_samples`), ``skipped``
+        (the fraction of the weight at invalid MERL cells), ``reseeds``, ``dead_terms``,
+        ``history`` (the relative error after each sweep) and
         ``antisymmetric`` (the relative L2 norm of the antisymmetric part
         (q(w_i, w_o) - q(w_o, w_i))/2 on the rule, the channels summed, as ``error``: the
         floor of a half-turn lobe; 0 when a half-turn fit is given a BRDF that says it is
@@ -1324,11 +1453,14 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
 
     th, td, phi, wq, s, t = _rule((n_h, n_d), power, power_d, samples, full)
     check_bytes(8.0 * phi.size * (C + 8), f"fitting on a rule of {phi.size} points")
-    data = _sample(brdf, th, td, phi, wq, C, full)
+    rule = (n_h, n_d, power, power_d, samples, full, C)
+    reused = _shared(brdf, rule) is not None
+    data = _share(brdf, rule, lambda: _sample(brdf, th, td, phi, wq, C, full))
     if not data["S"].sum() > 0:
         raise ValueError(f"brdf must not vanish on the upper hemisphere, got {brdf!r} = 0 "
                          "at every node of the rule")
-    prob = _Problem(data, phi, s, t, (n_h, n_d), n_phi, 2.0 * math.pi if full else math.pi)
+    prob = _share(brdf, (*rule, n_phi), lambda: _Problem(
+        data, phi, s, t, (n_h, n_d), n_phi, 2.0 * math.pi if full else math.pi))
 
     # the steps multiply small matrices (cells x nodes x rank^2): BLAS threads only add
     # synchronisation, and cost 5-10x when another process holds a core (rank 2, bins
@@ -1364,6 +1496,8 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
             beta = _BETA[0]
             for it_stage in range(budget):
                 iterations += 1
+                if mom is None:
+                    mom = prob.moments(Cphi)
                 G = np.stack([(prob.Q @ B[:, :, min(c, CB - 1)].T) * w[:, c] for c in range(C)])
                 A, kd, pa, value = _side_step(prob, mom, "h", G, diffuse, CA == 1, pa)
                 G = np.stack([(prob.P @ A[:, :, min(c, CA - 1)].T) * w[:, c] for c in range(C)])
@@ -1385,7 +1519,9 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
                     else:
                         B[k] = 0.0
                 if phi_active:
-                    mom = prob.moments(Cphi)
+                    # the moments of the new phi_d tables are formed when the next sweep
+                    # needs them, unless the extrapolation below is kept and brings its own
+                    mom = None
                     # the value of the last solve is the squared error less sum w f^2
                     err = max(s_tot + value, 0.0)
                 else:
@@ -1426,7 +1562,7 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
         "iterations": iterations,
         "converged": converged,
         "seconds": time.perf_counter() - start,
-        "evaluations": data["evaluations"],
+        "evaluations": 0 if reused else data["evaluations"],
         "skipped": data["skipped"],
         "reseeds": reseeds,
         "dead_terms": len(dead),

@@ -82,6 +82,7 @@ as if it were free.
 
 from __future__ import annotations
 
+import functools
 import time
 import warnings
 from collections.abc import Mapping
@@ -439,13 +440,12 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
     if getattr(brdf, "delta", ()):
         warnings.warn(f"{brdf!r} has delta (ideal mirror) terms; fit_model fits only its "
                       "eval() part", UserWarning, stacklevel=2)
-    samples = peak_resolving_pairs(opts["n"], seed=opts["seed"], widths=opts["widths"])
+    samples = _pairs(opts["n"], opts["seed"], opts["widths"])
     f = _target(brdf, samples)
     model = _family(family, f.shape[1], opts["lobes"], opts["wavelength"])
     fitted, report = _fit_parametric(family, model, _Geometry(samples.wi, samples.wo), f,
                                      samples.weights, metric, opts)
-    err = brdf_errors(brdf, fitted, peak_resolving_pairs(
-        opts["error_n"], seed=opts["error_seed"], widths=opts["widths"]))
+    err = brdf_errors(brdf, fitted, _pairs(opts["error_n"], opts["error_seed"], opts["widths"]))
     fitted.info = {
         **err, **report,
         "samples": {"fit": samples.description,
@@ -556,6 +556,25 @@ def _fit_samples(meas: Measurements, family: str, metric: str, options: dict,
     return fitted
 
 
+def _pairs(n: int, seed: int, widths: object) -> PairSamples:
+    """Return ``peak_resolving_pairs(n, seed=seed, widths=widths)``, the last few kept.
+
+    Fits of one BRDF in a row (the candidates of ``compress.select``) measure their errors
+    on the same pairs; drawing them takes about as long as a small fit. PairSamples are
+    read-only, so sharing them is safe.
+    """
+    try:
+        key = tuple(float(x) for x in widths)  # type: ignore[attr-defined]
+    except (TypeError, ValueError):  # let peak_resolving_pairs say what is wrong
+        return peak_resolving_pairs(n, seed=seed, widths=widths)  # type: ignore[arg-type]
+    return _cached_pairs(n, seed, key)
+
+
+@functools.lru_cache(maxsize=4)
+def _cached_pairs(n: int, seed: int, widths: tuple[float, ...]) -> PairSamples:
+    return peak_resolving_pairs(n, seed=seed, widths=widths)
+
+
 def _table_options(family: str, metric: str, options: dict,
                    own: tuple[str, ...]) -> tuple[dict, PairSamples, str]:
     """Check the options of a tabulated family (its own and those of the error pairs).
@@ -574,8 +593,7 @@ def _table_options(family: str, metric: str, options: dict,
     error_n = nonneg_int(options.get("error_n", DEFAULTS["error_n"]), "error_n")
     error_seed = options.get("error_seed")
     error_seed = seed + 1 if error_seed is None else nonneg_int(error_seed, "error_seed")
-    pairs = peak_resolving_pairs(error_n, seed=error_seed,
-                                 widths=options.get("widths", DEFAULTS["widths"]))
+    pairs = _pairs(error_n, error_seed, options.get("widths", DEFAULTS["widths"]))
     return ({k: v for k, v in options.items() if k in own}, pairs,
             f"error_n={error_n}, error_seed={error_seed}")
 

@@ -126,6 +126,76 @@ def test_exact_recovery_with_phi_factor():
     np.testing.assert_allclose(fit.eval(wi, wo), true.eval(wi, wo), rtol=1e-6)
 
 
+@pytest.mark.parametrize("turn", ["half", "full"])
+def test_steps_report_the_pointwise_error(turn):
+    """The alternating steps work on sums over phi_d (the moments of the term pairs k <= l,
+    packed) and on normal equations; the squared error summed point by point over the rule
+    is an independent reference for both. The moments' S - 2 cross + quad equals it, and
+    the value each step returns for its solution x (x^T M x - 2 x^T b, the squared error less
+    sum w f^2) plus sum w f^2 equals the pointwise error of that solution: a wrong normal
+    matrix or right-hand side breaks the identity. Each side is a sum of ~10^4 positive
+    terms of one size (random tables), so they agree to rounding: rtol 1e-9."""
+    from project import factored as pf
+
+    full = turn == "full"
+    brdf = CookTorrance([0.3, 0.2, 0.1], 0.2, "ggx", ior=1.5)
+    bins, n_phi, r = (7, 6), 8 if full else 4, 3
+    th, td, phi, wq, s, t = pf._rule(bins, 3.0, 2.0, (24, 12, 6), full)
+    prob = pf._Problem(pf._sample(brdf, th, td, phi, wq, 3, full), phi, s, t, bins, n_phi,
+                       (2.0 if full else 1.0) * np.pi)
+    rng = np.random.default_rng(11)
+    A, B = rng.random((r, bins[0], 1)), rng.random((r, bins[1], 1))
+    w, Cphi, kd = rng.random((r, 3)), rng.random((r, n_phi)), 0.1 * rng.random(3)
+    total = float(prob.S.sum())
+
+    def pointwise(A, B, w, Cphi, kd):
+        return float(pf._error(prob, pf._terms(prob, A, B, w), Cphi, kd).sum())
+
+    mom = prob.moments(Cphi)
+    quad = pf._quadratic(prob, mom, pf._terms(prob, A, B, w), kd)
+    assert quad == pytest.approx(pointwise(A, B, w, Cphi, kd), rel=1e-9)
+    G = np.stack([(prob.Q @ B[:, :, 0].T) * w[:, c] for c in range(3)])
+    A, kd, _, value = pf._side_step(prob, mom, "h", G, True, True, None)
+    assert total + value == pytest.approx(pointwise(A, B, w, Cphi, kd), rel=1e-9)
+    G = np.stack([(prob.P @ A[:, :, 0].T) * w[:, c] for c in range(3)])
+    B, kd, _, value = pf._side_step(prob, mom, "d", G, True, True, None)
+    assert total + value == pytest.approx(pointwise(A, B, w, Cphi, kd), rel=1e-9)
+    w, kd, value = pf._weights_step(prob, mom, A, B, True)
+    assert total + value == pytest.approx(pointwise(A, B, w, Cphi, kd), rel=1e-9)
+    Cphi, kd, _, value = pf._phi_step(prob, pf._terms(prob, A, B, w), True, None)
+    assert total + value == pytest.approx(pointwise(A, B, w, Cphi, kd), rel=1e-9)
+    # per-channel theta_d tables (color="theta_d"): one normal matrix per channel
+    ones = np.ones((r, 3))
+    G = np.stack([prob.P @ A[:, :, 0].T for _ in range(3)])
+    B, kd, _, value = pf._side_step(prob, prob.moments(Cphi), "d", G, True, False, None)
+    assert B.shape == (r, bins[1], 3)
+    assert total + value == pytest.approx(pointwise(A, B, ones, Cphi, kd), rel=1e-9)
+
+
+def test_reuse_samples_gives_the_same_fits():
+    """Fits inside reuse_samples share the samples of a rule (the same table nodes in
+    theta_h, theta_d; any rank and phi_d nodes): the reference is the same fit made alone,
+    which samples the BRDF itself; the tables must agree bit for bit (the same arithmetic on
+    the same numbers). Another BRDF object, even an equal one, is sampled anew."""
+    from project.factored import reuse_samples
+
+    ct = CookTorrance([0.3, 0.2, 0.1], 0.2, "ggx", ior=1.5)
+    alone = [fit_factored(ct, rank=r, bins=b) for r, b in ((1, (16, 8)), (2, (16, 8, 4)))]
+    with reuse_samples():
+        first = fit_factored(ct, rank=1, bins=(16, 8))
+        second = fit_factored(ct, rank=2, bins=(16, 8, 4))
+        other = fit_factored(CookTorrance([0.3, 0.2, 0.1], 0.2, "ggx", ior=1.5), rank=1,
+                             bins=(16, 8))
+    for fit, ref in zip((first, second), alone, strict=True):
+        for k, v in ref.params.items():
+            np.testing.assert_array_equal(fit.params[k], v, err_msg=k)
+    assert first.info["evaluations"] == alone[0].info["evaluations"] > 0
+    assert second.info["evaluations"] == 0
+    assert other.info["evaluations"] == alone[0].info["evaluations"]
+    # outside the block nothing is kept
+    assert fit_factored(ct, rank=1, bins=(16, 8)).info["evaluations"] > 0
+
+
 def test_floor_reports_the_phi_dependence():
     """A member with a phi_d factor fitted without one: the error cannot go below the
     reported floor (the best phi_d-independent function), and is close to it at rank 1."""
