@@ -42,10 +42,29 @@ import math
 from typing import Any
 
 import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
 from numpy.typing import ArrayLike, NDArray
 
 from ._base import Basis
-from .jit import pjit, prange, writable
+from .jit import (
+    _V8,
+    LANES,
+    _elem,
+    _fcall,
+    _load,
+    _splat,
+    _store,
+    lane_copy,
+    lane_mul,
+    lane_muladd,
+    lane_recur,
+    pjit,
+    prange,
+    writable,
+)
 from .validation import UNIT_ATOL, as_directions, broadcast_batch, check_bytes
 
 __all__ = ["Evaluator"]
@@ -53,7 +72,7 @@ __all__ = ["Evaluator"]
 #: Kernel codes of the separable forms in the module docstring, by ``Basis.kind``.
 _FORMS = {"zernike": 0, "harmonics": 1, "harmonics-even": 2, "sh": 3}
 #: Pairs per task of the parallel loop (scratch arrays are allocated once per task).
-_CHUNK = 128
+_CHUNK = 1024
 #: The kernel's length test on |w|^2: |w|^2 within this of 1 implies | |w| - 1 | within
 #: UNIT_ATOL, so it never accepts a vector that as_directions rejects.
 _QUICK_ATOL = 2.0 * UNIT_ATOL * (1.0 - UNIT_ATOL)
@@ -294,6 +313,181 @@ def _chebyshev_blocks(b: Basis, blocks: tuple[NDArray, ...], *, general: bool = 
             np.ascontiguousarray(coefa), tria)
 
 
+# -- the fused kernel: eight pairs per step ---------------------------------------------------
+# numba's loop vectoriser gives up on the lane loops of this kernel (many scratch arrays it
+# cannot prove disjoint), so the per-pair geometry and the block sums are emitted here as
+# explicit <8 x double> operations (the powers of a_i conj(a_o) inside the block sums, in
+# registers), and the Chebyshev values and their products use the lane operations of
+# basis.jit.
+
+
+def _geometry_codegen(context, builder, signature, args):
+    t = signature.args
+    wi, wo, p, form, fcos, lift, s_lift, atol, tt, to1, wr_, wim_, scale_ = args
+    f64 = types.float64
+    lift, s_lift, atol = (context.cast(builder, v, ty, f64)
+                          for v, ty in ((lift, t[5]), (s_lift, t[6]), (atol, t[7])))
+    form = context.cast(builder, form, t[3], types.int64)
+    fcos = context.cast(builder, fcos, t[4], types.boolean)
+    i32 = ir.IntType(32)
+    zero = ir.Constant(_V8, [0.0] * LANES)
+    one = ir.Constant(_V8, [1.0] * LANES)
+
+    def mask(idx):
+        return ir.Constant(ir.VectorType(i32, LANES), idx)
+
+    def direction(aty, a):
+        # (x, y, z) of directions p..p+7: three loads of eight, de-interleaved
+        base = builder.mul(p, ir.Constant(p.type, 3))
+        v = [_load(context, builder, aty, a, builder.add(base, ir.Constant(p.type, 8 * k)))
+             for k in range(3)]
+        x = builder.shuffle_vector(v[0], v[1], mask([0, 3, 6, 9, 12, 15, 0, 0]))
+        x = builder.shuffle_vector(x, v[2], mask([0, 1, 2, 3, 4, 5, 10, 13]))
+        y = builder.shuffle_vector(v[0], v[1], mask([1, 4, 7, 10, 13, 0, 0, 0]))
+        y = builder.shuffle_vector(y, v[2], mask([0, 1, 2, 3, 4, 8, 11, 14]))
+        z = builder.shuffle_vector(v[0], v[1], mask([2, 5, 8, 11, 14, 0, 0, 0]))
+        z = builder.shuffle_vector(z, v[2], mask([0, 1, 2, 3, 4, 9, 12, 15]))
+        return x, y, z
+
+    def fabs(v):
+        return _fcall(builder, "llvm.fabs", v)
+
+    def sqrt(v):
+        return _fcall(builder, "llvm.sqrt", v)
+
+    def unit(aty, a):
+        x, y, z = direction(aty, a)
+        q = builder.fadd(builder.fadd(builder.fmul(x, x), builder.fmul(y, y)),
+                         builder.fmul(z, z))
+        ok = builder.fcmp_ordered("<=", fabs(builder.fsub(q, one)), _splat(builder, atol))
+        below = builder.fcmp_ordered("<", z, zero)
+        r = builder.fdiv(one, sqrt(q))
+        x, y, z = builder.fmul(x, r), builder.fmul(y, r), builder.fmul(z, r)
+        # directions under cos(theta) = lift go up to it, same azimuth (rare: a branch)
+        low = builder.fcmp_ordered("<", z, _splat(builder, lift))
+        slot = [cgutils.alloca_once_value(builder, v) for v in (x, y, z)]
+        anylow = builder.icmp_unsigned("!=", builder.bitcast(low, ir.IntType(LANES)),
+                                       ir.Constant(ir.IntType(LANES), 0))
+        with builder.if_then(anylow, likely=False):
+            h = sqrt(builder.fadd(builder.fmul(x, x), builder.fmul(y, y)))
+            hp = builder.fcmp_ordered(">", h, zero)
+            sl = _splat(builder, s_lift)
+            lx = builder.select(hp, builder.fdiv(builder.fmul(x, sl), h), sl)
+            ly = builder.select(hp, builder.fdiv(builder.fmul(y, sl), h), zero)
+            builder.store(builder.select(low, lx, x), slot[0])
+            builder.store(builder.select(low, ly, y), slot[1])
+            builder.store(builder.select(low, _splat(builder, lift), z), slot[2])
+        x, y, z = (builder.load(v) for v in slot)
+        return x, y, z, ok, below
+
+    ix, iy, iz, oki, bi_ = unit(t[0], wi)
+    ox, oy, oz, oko, bo_ = unit(t[1], wo)
+    below = builder.or_(bi_, bo_)
+    ok = builder.and_(oki, oko)
+    bad = builder.icmp_unsigned("!=", builder.bitcast(ok, ir.IntType(LANES)),
+                                ir.Constant(ir.IntType(LANES), 2**LANES - 1))
+    is0 = builder.icmp_signed("==", form, ir.Constant(ir.IntType(64), 0))
+    is3 = builder.icmp_signed("==", form, ir.Constant(ir.IntType(64), 3))
+    two = ir.Constant(_V8, [2.0] * LANES)
+    fis = [cgutils.alloca_once_value(builder, one) for _ in range(2)]
+    with builder.if_then(is0):  # zernike: a = (x + i y) / sqrt(1 + z)
+        builder.store(builder.fdiv(one, sqrt(builder.fadd(one, iz))), fis[0])
+        builder.store(builder.fdiv(one, sqrt(builder.fadd(one, oz))), fis[1])
+    fi, fo = (builder.load(v) for v in fis)
+
+    def cheb(z):
+        return builder.select(is0, builder.fsub(one, builder.fmul(two, z)),
+                              builder.select(is3, z, builder.fsub(builder.fmul(
+                                  builder.fmul(two, z), z), one)))
+
+    xi, xo = cheb(iz), cheb(oz)
+    ar, ai = builder.fmul(ix, fi), builder.fmul(iy, fi)
+    br, bi = builder.fmul(ox, fo), builder.fmul(builder.fneg(oy), fo)
+    wr = builder.fsub(builder.fmul(ar, br), builder.fmul(ai, bi))
+    wim = builder.fadd(builder.fmul(ar, bi), builder.fmul(ai, br))
+    is1 = builder.icmp_signed("==", form, ir.Constant(ir.IntType(64), 1))
+    zz = builder.fmul(iz, oz)
+    scale = builder.select(is1, builder.select(fcos, one, zz),
+                           builder.select(fcos, builder.fdiv(one, zz), one))
+    zi = ir.Constant(p.type, 0)
+    l8 = ir.Constant(p.type, LANES)
+    for arr, aty, idx, v in ((tt, t[8], l8, xi), (tt, t[8], builder.add(to1, zi), xo),
+                             (wr_, t[10], zi, wr), (wim_, t[11], zi, wim),
+                             (scale_, t[12], zi, scale)):
+        _store(context, builder, aty, arr, idx, builder.select(below, zero, v))
+    return bad
+
+
+@intrinsic
+def _lane_geometry(typingctx, wi, wo, p, form, fcos, lift, s_lift, atol, tt, to1, wr, wim,
+                   scale):
+    # Pairs p..p+7 of wi, wo (n, 3): renormalised, lifted to cos(theta) >= lift, then the
+    # Chebyshev variables x_i, x_o (to tt[8:16] and tt[to1:to1+8]), Re and Im of
+    # a_i conj(a_o) (wr, wim) and the factor of q (scale) of the form (module docstring);
+    # all 0 where a direction is below the horizon. True when some |w|^2 is further than
+    # atol from 1 or NaN. The operations of the scalar code this replaced, lane-wise.
+    sig = types.boolean(wi, wo, p, form, fcos, lift, s_lift, atol, tt, to1, wr, wim, scale)
+    return sig, _geometry_codegen
+
+
+@intrinsic
+def _lane_blocks(typingctx, res, coef, tri, coefa, tria, sp, sa, wr, wim, ca, cb, cc):
+    # For channels ca, cb, cc of coef (nb, nc, K) and coefa (nb, nc, K'), both C-contiguous:
+    # res[8 g:8 g+8] = sum_m Re(w^m) (sum_t coef[m, c_g, t] sp[8t:8t+8]
+    #                                   + sum_t coefa[m, c_g, t] sa[8t:8t+8]),
+    # t below tri[m] and tria[m], w = wr + i wim lane-wise. Three channels at once share each
+    # load of sp, sa; the powers of w stay in registers (a chain through memory would wait
+    # on each store).
+    sig = types.void(res, coef, tri, coefa, tria, sp, sa, wr, wim, ca, cb, cc)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        r_, cf, tr, cfa, tra, sp_, sa_, wr_, wim_, *chan = args
+        intp = context.get_value_type(types.intp)
+        chan = [context.cast(builder, c, ty, types.intp)
+                for c, ty in zip(chan, t[9:], strict=True)]
+        zero = ir.Constant(_V8, [0.0] * LANES)
+        zi = ir.Constant(intp, 0)
+        wrv = _load(context, builder, t[7], wr_, zi)
+        wiv = _load(context, builder, t[8], wim_, zi)
+        tot = [cgutils.alloca_once_value(builder, zero) for _ in chan]
+        pw = [cgutils.alloca_once_value(builder, v)
+              for v in (ir.Constant(_V8, [1.0] * LANES), zero)]
+
+        def dims(aty, a):
+            arr = context.make_array(aty)(context, builder, a)
+            return arr.data, cgutils.unpack_tuple(builder, arr.shape, 3)
+
+        (cdata, (nb, nc, kk)), (adata, (_, _, ka)) = dims(t[1], cf), dims(t[3], cfa)
+        eight = ir.Constant(intp, LANES)
+        with cgutils.for_range(builder, nb) as loop:
+            m = loop.index
+            acc = [cgutils.alloca_once_value(builder, zero) for _ in chan]
+            for data, k, ta, ia, sta, isa in ((cdata, kk, t[2], tr, t[5], sp_),
+                                              (adata, ka, t[4], tra, t[6], sa_)):
+                count = context.cast(builder, _elem(context, builder, ta, ia, m),
+                                     ta.dtype, types.intp)
+                rows = [builder.mul(builder.add(builder.mul(m, nc), c), k) for c in chan]
+                with cgutils.for_range(builder, count) as inner:
+                    q = inner.index
+                    v = _load(context, builder, sta, isa, builder.mul(q, eight))
+                    for a, row in zip(acc, rows, strict=True):
+                        c = builder.load(builder.gep(data, [builder.add(row, q)]))
+                        builder.store(builder.fadd(builder.load(a),
+                                                   builder.fmul(_splat(builder, c), v)), a)
+            pr, pim = (builder.load(v) for v in pw)
+            for s_, a in zip(tot, acc, strict=True):
+                builder.store(builder.fadd(builder.load(s_),
+                                           builder.fmul(pr, builder.load(a))), s_)
+            builder.store(builder.fsub(builder.fmul(pr, wrv), builder.fmul(pim, wiv)), pw[0])
+            builder.store(builder.fadd(builder.fmul(pr, wiv), builder.fmul(pim, wrv)), pw[1])
+        for g, s_ in enumerate(tot):
+            _store(context, builder, t[0], r_, ir.Constant(intp, LANES * g), builder.load(s_))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 @pjit
 def _iso_kernel(wi, wo, coef, tri, coefa, tria, form, fcos, min_cos, atol, flags,
                 out):  # pragma: no cover - compiled
@@ -302,12 +496,14 @@ def _iso_kernel(wi, wo, coef, tri, coefa, tria, form, fcos, min_cos, atol, flags
     # their lengths (all 0 for symmetric blocks); form: 0 zernike, 1 odd, 2 even, 3 sh;
     # out: (n, nc).
     # flags (ntask,): set to 1 for a task holding a vector with | |w|^2 - 1 | > atol or NaN.
-    # Pairs in tasks of _CHUNK lanes. Only phase 1 (the geometry of each pair) is scalar;
-    # every later loop runs over the contiguous lanes of one quantity (Chebyshev values,
-    # their products, the azimuthal powers, the block sums), so it vectorises.
+    # Tasks of _CHUNK pairs, each in steps of LANES pairs; a last partial step runs on
+    # copies padded with the pole (whose values are dropped). Scratch is lane-fastest:
+    # entry r of lane j at r * LANES + j. tt holds T_a(x_i) at rows a < kk, T_a(x_o) at
+    # rows kk + a; sp, sa the products S_ab, D_ab in the packed order of _chebyshev_blocks.
     n = wi.shape[0]
     nb, nc, npk = coef.shape[0], coef.shape[1], coef.shape[2]
     kmax = int(round((math.sqrt(8 * npk + 1) - 1) / 2))
+    kk = max(kmax, 2)
     npa = 0
     for m in range(nb):
         npa = max(npa, tria[m])
@@ -315,138 +511,59 @@ def _iso_kernel(wi, wo, coef, tri, coefa, tria, form, fcos, min_cos, atol, flags
     lift = min_cos if fcos else 0.0
     s_lift = math.sqrt(1.0 - lift * lift)
     for task in prange(ntask):
-        ti = np.empty((max(kmax, 2), _CHUNK))
-        to = np.empty((max(kmax, 2), _CHUNK))
-        sp = np.empty((npk, _CHUNK))
-        sa = np.empty((max(npa, 1), _CHUNK))
-        wm = np.empty((nb, _CHUNK))
-        wr = np.empty(_CHUNK)
-        wim = np.empty(_CHUNK)
-        scale = np.empty(_CHUNK)
-        acc = np.empty(_CHUNK)
-        tot = np.empty(_CHUNK)
-        p0 = task * _CHUNK
-        lanes = min(n, p0 + _CHUNK) - p0
+        tt = np.empty(2 * kk * LANES)
+        sp = np.empty(npk * LANES)
+        sa = np.empty(max(npa, 1) * LANES)
+        ones = np.ones(LANES)
+        wr = np.empty(LANES)
+        wim = np.empty(LANES)
+        scale = np.empty(LANES)
+        res = np.empty(3 * LANES)
+        pad_i = np.zeros((LANES, 3))
+        pad_o = np.zeros((LANES, 3))
         bad = False
-        for j in range(lanes):
-            p = p0 + j
-            qi = wi[p, 0] * wi[p, 0] + wi[p, 1] * wi[p, 1] + wi[p, 2] * wi[p, 2]
-            qo = wo[p, 0] * wo[p, 0] + wo[p, 1] * wo[p, 1] + wo[p, 2] * wo[p, 2]
-            bad |= not (abs(qi - 1.0) <= atol and abs(qo - 1.0) <= atol)
+        p0 = task * _CHUNK
+        for p in range(p0, min(n, p0 + _CHUNK), LANES):
+            lanes = min(LANES, n - p)
+            if lanes == LANES:
+                bad |= _lane_geometry(wi, wo, p, form, fcos, lift, s_lift, atol, tt,
+                                      (kk + 1) * LANES, wr, wim, scale)
+            else:
+                for j in range(LANES):
+                    for c in range(3):
+                        pad_i[j, c] = wi[p + j, c] if j < lanes else (1.0 if c == 2 else 0.0)
+                        pad_o[j, c] = wo[p + j, c] if j < lanes else (1.0 if c == 2 else 0.0)
+                bad |= _lane_geometry(pad_i, pad_o, 0, form, fcos, lift, s_lift, atol, tt,
+                                      (kk + 1) * LANES, wr, wim, scale)
+            # Chebyshev values T_a(x) of both directions (vector stores: a vector load of
+            # scalar stores would wait for them to reach the cache)
+            lane_copy(tt, 0, ones, 0)
+            lane_copy(tt, kk * LANES, ones, 0)
+            for a in range(2, kmax):
+                for h in (0, kk * LANES):
+                    lane_recur(tt, h + a * LANES, tt, h + LANES, tt, h + (a - 1) * LANES,
+                               tt, h + (a - 2) * LANES, 2.0, 1.0)
+            # symmetrised products S_ab, packed column by column (see _chebyshev_blocks),
+            # and the antisymmetrised D_ab (a < b) of general blocks
+            q = 0
+            qa = 0
+            for b in range(kmax):
+                for a in range(b):
+                    lane_muladd(sp, q * LANES, tt, a * LANES, tt, (kk + b) * LANES,
+                                tt, b * LANES, tt, (kk + a) * LANES, 1.0)
+                    q += 1
+                    if qa < npa:
+                        lane_muladd(sa, qa * LANES, tt, a * LANES, tt, (kk + b) * LANES,
+                                    tt, b * LANES, tt, (kk + a) * LANES, -1.0)
+                        qa += 1
+                lane_mul(sp, q * LANES, tt, b * LANES, tt, (kk + b) * LANES)
+                q += 1
+            # sum_m Re (a_i conj a_o)^m sum_t C_m,t S_t, three channels at a time
+            for c in range(0, nc, 3):
+                _lane_blocks(res, coef, tri, coefa, tria, sp, sa, wr, wim, c,
+                             min(c + 1, nc - 1), min(c + 2, nc - 1))
+                for g in range(min(3, nc - c)):
+                    for j in range(lanes):
+                        v = res[g * LANES + j]
+                        out[p + j, c + g] = v * scale[j] if scale[j] != 0.0 else 0.0
         flags[task] = bad
-        # phase 1: per-pair geometry. Pairs below the horizon get harmless factors and
-        # scale 0 (their value is set to 0 at the end).
-        for j in range(lanes):
-            p = p0 + j
-            ix, iy, iz = wi[p, 0], wi[p, 1], wi[p, 2]
-            ox, oy, oz = wo[p, 0], wo[p, 1], wo[p, 2]
-            if iz < 0.0 or oz < 0.0:  # below the horizon: 0
-                ti[1, j] = 0.0
-                to[1, j] = 0.0
-                wr[j] = 0.0
-                wim[j] = 0.0
-                scale[j] = 0.0
-                continue
-            r = 1.0 / math.sqrt(ix * ix + iy * iy + iz * iz)
-            ix, iy, iz = ix * r, iy * r, iz * r
-            r = 1.0 / math.sqrt(ox * ox + oy * oy + oz * oz)
-            ox, oy, oz = ox * r, oy * r, oz * r
-            if iz < lift:
-                h = math.sqrt(ix * ix + iy * iy)
-                if h > 0.0:
-                    ix, iy = ix * s_lift / h, iy * s_lift / h
-                else:
-                    ix, iy = s_lift, 0.0
-                iz = lift
-            if oz < lift:
-                h = math.sqrt(ox * ox + oy * oy)
-                if h > 0.0:
-                    ox, oy = ox * s_lift / h, oy * s_lift / h
-                else:
-                    ox, oy = s_lift, 0.0
-                oz = lift
-            # Chebyshev variable x and azimuthal factor a = s e^{i phi}
-            if form == 0:
-                xi, xo = 1.0 - 2.0 * iz, 1.0 - 2.0 * oz
-                fi, fo = 1.0 / math.sqrt(1.0 + iz), 1.0 / math.sqrt(1.0 + oz)
-            elif form == 3:
-                xi, xo = iz, oz
-                fi, fo = 1.0, 1.0
-            else:
-                xi, xo = 2.0 * iz * iz - 1.0, 2.0 * oz * oz - 1.0
-                fi, fo = 1.0, 1.0
-            ti[1, j] = xi
-            to[1, j] = xo
-            ar, ai = ix * fi, iy * fi
-            br, bi = ox * fo, -oy * fo
-            wr[j] = ar * br - ai * bi
-            wim[j] = ar * bi + ai * br
-            if form == 1:  # g = z: q = z_i z_o S
-                scale[j] = 1.0 if fcos else iz * oz
-            else:
-                scale[j] = 1.0 / (iz * oz) if fcos else 1.0
-        # Chebyshev values T_a(x) of both directions
-        for j in range(lanes):
-            ti[0, j] = 1.0
-            to[0, j] = 1.0
-        for a in range(2, kmax):
-            for j in range(lanes):
-                ti[a, j] = 2.0 * ti[1, j] * ti[a - 1, j] - ti[a - 2, j]
-                to[a, j] = 2.0 * to[1, j] * to[a - 1, j] - to[a - 2, j]
-        # symmetrised products S_ab, packed column by column (see _chebyshev_blocks)
-        t = 0
-        for b in range(kmax):
-            for a in range(b):
-                for j in range(lanes):
-                    sp[t, j] = ti[a, j] * to[b, j] + ti[b, j] * to[a, j]
-                t += 1
-            for j in range(lanes):
-                sp[t, j] = ti[b, j] * to[b, j]
-            t += 1
-        # antisymmetrised products D_ab (a < b), only for general blocks
-        t = 0
-        for b in range(kmax):
-            if t >= npa:
-                break
-            for a in range(b):
-                for j in range(lanes):
-                    sa[t, j] = ti[a, j] * to[b, j] - ti[b, j] * to[a, j]
-                t += 1
-        # Re (a_i conj a_o)^m
-        for j in range(lanes):
-            wm[0, j] = 1.0
-            acc[j] = 0.0  # Im of the running power
-        for m in range(1, nb):
-            for j in range(lanes):
-                pr, pim = wm[m - 1, j], acc[j]
-                wm[m, j] = pr * wr[j] - pim * wim[j]
-                acc[j] = pr * wim[j] + pim * wr[j]
-        # phase 2: sum_m wm_m sum_t C_m,t sp_t, lane-parallel
-        for c in range(nc):
-            for j in range(lanes):
-                tot[j] = 0.0
-            for m in range(nb):
-                for j in range(lanes):
-                    acc[j] = 0.0
-                nt = tri[m]
-                t = 0
-                while t + 4 <= nt:  # four rows per pass: fewer loads and stores of acc
-                    c0, c1 = coef[m, c, t], coef[m, c, t + 1]
-                    c2, c3 = coef[m, c, t + 2], coef[m, c, t + 3]
-                    for j in range(lanes):
-                        acc[j] += ((c0 * sp[t, j] + c1 * sp[t + 1, j])
-                                   + (c2 * sp[t + 2, j] + c3 * sp[t + 3, j]))
-                    t += 4
-                while t < nt:
-                    cv = coef[m, c, t]
-                    for j in range(lanes):
-                        acc[j] += cv * sp[t, j]
-                    t += 1
-                for t in range(tria[m]):
-                    cv = coefa[m, c, t]
-                    for j in range(lanes):
-                        acc[j] += cv * sa[t, j]
-                for j in range(lanes):
-                    tot[j] += wm[m, j] * acc[j]
-            for j in range(lanes):
-                out[p0 + j, c] = tot[j] * scale[j] if scale[j] != 0.0 else 0.0

@@ -127,6 +127,43 @@ def lane_mul(typingctx, dst, di, x, xi, y, yi):
     return sig, codegen
 
 
+def _transpose_store(context, builder, aty, d, idi, st, rows):
+    # rows[r] holds entry r of lanes 0..7: store lane j's eight entries at d[idi + j * st:]
+    ity = idi.type
+    lo, hi = [0, 8, 2, 10, 4, 12, 6, 14], [1, 9, 3, 11, 5, 13, 7, 15]
+    a = []
+    for r in range(0, LANES, 2):
+        a += [_shuffle(builder, rows[r], rows[r + 1], lo),
+              _shuffle(builder, rows[r], rows[r + 1], hi)]
+    lo2, hi2 = [0, 1, 8, 9, 4, 5, 12, 13], [2, 3, 10, 11, 6, 7, 14, 15]
+    bq = {}
+    for g in (0, 4):  # a[g..g+3]: lanes (even, odd) of rows g/2*... pairs
+        bq[(g, 0)] = _shuffle(builder, a[g], a[g + 2], lo2)      # lanes 0, 4
+        bq[(g, 2)] = _shuffle(builder, a[g], a[g + 2], hi2)      # lanes 2, 6
+        bq[(g, 1)] = _shuffle(builder, a[g + 1], a[g + 3], lo2)  # lanes 1, 5
+        bq[(g, 3)] = _shuffle(builder, a[g + 1], a[g + 3], hi2)  # lanes 3, 7
+    lo4, hi4 = [0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15]
+    for j in range(4):
+        for lane, mask in ((j, lo4), (j + 4, hi4)):
+            v = _shuffle(builder, bq[(0, j)], bq[(4, j)], mask)
+            off = builder.add(idi, builder.mul(st, ir.Constant(ity, lane)))
+            _store(context, builder, aty, d, off, v)
+
+
+@intrinsic
+def lane_copy(typingctx, dst, di, src, si):
+    """dst[di:di+8] = src[si:si+8]."""
+    sig = types.void(dst, di, src, si)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, s, isi = args
+        _store(context, builder, t[0], d, idi, _load(context, builder, t[2], s, isi))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
 @intrinsic
 def lane_transpose(typingctx, dst, di, stride, src, si):
     """dst[di + j * stride + r] = src[si + 8 r + j] for r, j < 8: an 8 x 8 block transposed.
@@ -139,27 +176,9 @@ def lane_transpose(typingctx, dst, di, stride, src, si):
     def codegen(context, builder, signature, args):
         t = signature.args
         d, idi, st, s, isi = args
-        ity = idi.type
         rows = [_load(context, builder, t[3], s, builder.add(isi, ir.Constant(isi.type, 8 * r)))
                 for r in range(LANES)]
-        lo, hi = [0, 8, 2, 10, 4, 12, 6, 14], [1, 9, 3, 11, 5, 13, 7, 15]
-        a = []
-        for r in range(0, LANES, 2):
-            a += [_shuffle(builder, rows[r], rows[r + 1], lo),
-                  _shuffle(builder, rows[r], rows[r + 1], hi)]
-        lo2, hi2 = [0, 1, 8, 9, 4, 5, 12, 13], [2, 3, 10, 11, 6, 7, 14, 15]
-        bq = {}
-        for g in (0, 4):  # a[g..g+3]: lanes (even, odd) of rows g/2*... pairs
-            bq[(g, 0)] = _shuffle(builder, a[g], a[g + 2], lo2)      # lanes 0, 4
-            bq[(g, 2)] = _shuffle(builder, a[g], a[g + 2], hi2)      # lanes 2, 6
-            bq[(g, 1)] = _shuffle(builder, a[g + 1], a[g + 3], lo2)  # lanes 1, 5
-            bq[(g, 3)] = _shuffle(builder, a[g + 1], a[g + 3], hi2)  # lanes 3, 7
-        lo4, hi4 = [0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15]
-        for j in range(4):
-            for lane, mask in ((j, lo4), (j + 4, hi4)):
-                v = _shuffle(builder, bq[(0, j)], bq[(4, j)], mask)
-                off = builder.add(idi, builder.mul(st, ir.Constant(ity, lane)))
-                _store(context, builder, t[0], d, off, v)
+        _transpose_store(context, builder, t[0], d, idi, st, rows)
         return context.get_dummy_value()
 
     return sig, codegen
@@ -243,6 +262,183 @@ def lane_rotate(typingctx, cc, ss, seed, r, c1, s1, dm, sn):
         f = builder.fmul(_splat(builder, dmv), _load(context, builder, t[7], sna, zi))
         _store(context, builder, t[2], sd, rr,
                builder.fmul(_load(context, builder, t[2], sd, rp), f))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_affine(typingctx, dst, di, a, x, xi, b, y, yi):
+    """dst[di:di+8] = (a * x[xi:xi+8] - b) * y[yi:yi+8]."""
+    sig = types.void(dst, di, a, x, xi, b, y, yi)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, aa, xx, ixi, bb, yy, iyi = args
+        aa = context.cast(builder, aa, t[2], types.float64)
+        bb = context.cast(builder, bb, t[5], types.float64)
+        v = builder.fsub(builder.fmul(_splat(builder, aa), _load(context, builder, t[3], xx, ixi)),
+                         _splat(builder, bb))
+        _store(context, builder, t[0], d, idi,
+               builder.fmul(v, _load(context, builder, t[6], yy, iyi)))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_jacobi(typingctx, dst, di, a, x, xi, b, p1, i1, c, p2, i2):
+    """dst[di:di+8] = (a * x[xi:xi+8] - b) * p1[i1:i1+8] - c * p2[i2:i2+8].
+
+    The three-term recurrence of the Jacobi polynomials in the form the Zernike radial
+    functions use; ``dst`` may be ``p2`` (each lane is read before it is written).
+    """
+    sig = types.void(dst, di, a, x, xi, b, p1, i1, c, p2, i2)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, aa, xx, ixi, bb, q1, ii1, cc, q2, ii2 = args
+        aa = context.cast(builder, aa, t[2], types.float64)
+        bb = context.cast(builder, bb, t[5], types.float64)
+        cc = context.cast(builder, cc, t[8], types.float64)
+        v = builder.fsub(builder.fmul(_splat(builder, aa), _load(context, builder, t[3], xx, ixi)),
+                         _splat(builder, bb))
+        v = builder.fmul(v, _load(context, builder, t[6], q1, ii1))
+        v = builder.fsub(v, builder.fmul(_splat(builder, cc),
+                                         _load(context, builder, t[9], q2, ii2)))
+        _store(context, builder, t[0], d, idi, v)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_disk(typingctx, dirs, i0, rho2, rho, c1, s1):
+    """Map directions i0..i0+7 of ``dirs`` (n, 3) to Lambert's azimuthal equal-area disk.
+
+    After renormalising each direction (as :func:`lane_unit`), stores lane by lane
+    rho^2 = (x^2 + y^2) / (1 + z) (1 - z where z <= -1/2), rho = sqrt(rho^2) and the unit
+    azimuth (cos phi, sin phi) (1, 0 at the poles) into the first eight entries of rho2, rho,
+    c1, s1: the operations of the scalar routine, lane-wise, so the same bits.
+    """
+    sig = types.void(dirs, i0, rho2, rho, c1, s1)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        dd, ii0, r2_, rh_, c_, si_ = args
+        data = context.make_array(t[0])(context, builder, dd).data
+        ity = ii0.type
+        base = builder.mul(ii0, ir.Constant(ity, 3))
+        undef = ir.Constant(_V8, ir.Undefined)
+        comp = []
+        for c in range(3):
+            v = undef
+            for j in range(LANES):
+                p = builder.gep(data, [builder.add(base, ir.Constant(ity, 3 * j + c))])
+                v = builder.insert_element(v, builder.load(p), ir.Constant(ir.IntType(32), j))
+            comp.append(v)
+        x, y, z = comp
+        r = _fcall(builder, "llvm.sqrt", builder.fadd(builder.fadd(builder.fmul(x, x),
+                                                                   builder.fmul(y, y)),
+                                                      builder.fmul(z, z)))
+        x, y, z = builder.fdiv(x, r), builder.fdiv(y, r), builder.fdiv(z, r)
+        s2 = builder.fadd(builder.fmul(x, x), builder.fmul(y, y))
+        s = _fcall(builder, "llvm.sqrt", s2)
+        zero = ir.Constant(_V8, [0.0] * LANES)
+        one = ir.Constant(_V8, [1.0] * LANES)
+        pos = builder.fcmp_ordered(">", s, zero)
+        cv = builder.select(pos, builder.fdiv(x, s), one)
+        sv = builder.select(pos, builder.fdiv(y, s), zero)
+        far = builder.fcmp_ordered(">", z, ir.Constant(_V8, [-0.5] * LANES))
+        q = builder.select(far, builder.fdiv(s2, builder.fadd(one, z)), builder.fsub(one, z))
+        zi = ir.Constant(ity, 0)
+        for arr, aty, v in ((r2_, t[2], q), (rh_, t[3], _fcall(builder, "llvm.sqrt", q)),
+                            (c_, t[4], cv), (si_, t[5], sv)):
+            _store(context, builder, aty, arr, zi, v)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+def _elem(context, builder, aty, a, i):
+    data = context.make_array(aty)(context, builder, a).data
+    return builder.load(builder.gep(data, [i]))
+
+
+@intrinsic
+def lane_tile(typingctx, dst, di, stride, x, ix, y, iy, f, k):
+    """Eight products (f[q] * x[ix[q]:ix[q]+8]) * y[iy[q]:iy[q]+8], q = k..k+7, transposed.
+
+    Lane j of product k + r goes to dst[di + j * stride + r]: eight output rows ``stride``
+    apart get eight values each, as :func:`lane_transpose` stores them, with no trip through
+    memory between the products and the transpose. ix, iy: int64 arrays; f: float64.
+    """
+    sig = types.void(dst, di, stride, x, ix, y, iy, f, k)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, st, xa, ixa, ya, iya, fa, kk = args
+        kk = context.cast(builder, kk, t[8], types.intp)
+        rows = []
+        for r in range(LANES):
+            q = builder.add(kk, ir.Constant(kk.type, r))
+            fr = _splat(builder, _elem(context, builder, t[7], fa, q))
+            xi, yi = (context.cast(builder, _elem(context, builder, ty, ia, q), ty.dtype,
+                                   types.intp) for ty, ia in ((t[4], ixa), (t[6], iya)))
+            rows.append(builder.fmul(builder.fmul(fr, _load(context, builder, t[3], xa, xi)),
+                                     _load(context, builder, t[5], ya, yi)))
+        _transpose_store(context, builder, t[0], d, idi, st, rows)
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_turn(typingctx, a, c, cp, s, sp, c1, s1):
+    """One step of the azimuthal recurrence, lane-wise, within one array.
+
+    a[c:c+8] = a[cp:cp+8] c1 - a[sp:sp+8] s1 and a[s:s+8] = a[sp:sp+8] c1 + a[cp:cp+8] s1,
+    with c1, s1 their first eight entries: (cos, sin) of the next multiple of the azimuth,
+    the operations of :func:`lane_rotate`.
+    """
+    sig = types.void(a, c, cp, s, sp, c1, s1)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        aa, ic, icp, is_, isp, c1a, s1a = args
+        zi = ir.Constant(ic.type, 0)
+        cm = _load(context, builder, t[0], aa, icp)
+        sm = _load(context, builder, t[0], aa, isp)
+        cv = _load(context, builder, t[5], c1a, zi)
+        sv = _load(context, builder, t[6], s1a, zi)
+        _store(context, builder, t[0], aa, ic,
+               builder.fsub(builder.fmul(cm, cv), builder.fmul(sm, sv)))
+        _store(context, builder, t[0], aa, is_,
+               builder.fadd(builder.fmul(sm, cv), builder.fmul(cm, sv)))
+        return context.get_dummy_value()
+
+    return sig, codegen
+
+
+@intrinsic
+def lane_muladd(typingctx, dst, di, x, xi, y, yi, u, ui, v, vi, sign):
+    """dst[di:di+8] = x[xi:xi+8] * y[yi:yi+8] + sign * (u[ui:ui+8] * v[vi:vi+8]).
+
+    ``sign`` is 1.0 or -1.0: the second product is added or subtracted (negation is exact,
+    so these are the bits of x y + u v and x y - u v).
+    """
+    sig = types.void(dst, di, x, xi, y, yi, u, ui, v, vi, sign)
+
+    def codegen(context, builder, signature, args):
+        t = signature.args
+        d, idi, xa, ixa, ya, iya, ua, iua, va, iva, sg = args
+        sg = context.cast(builder, sg, t[10], types.float64)
+        p = builder.fmul(_load(context, builder, t[2], xa, ixa),
+                         _load(context, builder, t[4], ya, iya))
+        q = builder.fmul(_load(context, builder, t[6], ua, iua),
+                         _load(context, builder, t[8], va, iva))
+        _store(context, builder, t[0], d, idi,
+               builder.fadd(p, builder.fmul(_splat(builder, sg), q)))
         return context.get_dummy_value()
 
     return sig, codegen

@@ -153,3 +153,22 @@ def test_plain_arrays_are_checked_inside_the_kernel(rng):
         bad[123] *= value
         with pytest.raises(ValueError, match=match):
             cm.eval(wi, bad)
+
+
+@pytest.mark.parametrize("channels", [None, 2, 4, 7])
+def test_partial_steps_and_channel_groups(channels, rng):
+    # the kernel takes pairs eight at a time (a last partial step runs on padded copies) and
+    # channels three at a time (a last partial group repeats its last channel): every count
+    # of pairs up to 17, channel counts that leave 1 and 2 over, grazing pairs lifted in some
+    # lanes and not others. Reference and tolerance as in test_matches_direct_product.
+    b = basis.HemiZernike(8)
+    cm = _random(b, rng, channels, "f_cos", True)
+    wi = random_directions(rng, 17, upper=True)
+    wo = random_directions(rng, 17, upper=True)
+    wi[[2, 9, 16], 2] = 1e-4  # under min_cos: lifted
+    wi[[2, 9, 16]] /= np.linalg.norm(wi[[2, 9, 16]], axis=1)[:, None]
+    wo[[3, 10]] = [0.0, 0.0, 1.0]
+    for n in range(1, 18):
+        got = cm.eval(wi[:n], wo[:n])
+        ref = _direct(cm, wi[:n], wo[:n], 1e-3)
+        assert np.max(np.abs(got - ref)) <= 1e-11 * np.max(np.abs(ref)), n

@@ -5,11 +5,18 @@ import numpy as np
 
 from basis.jit import (
     LANES,
+    lane_affine,
+    lane_copy,
+    lane_disk,
+    lane_jacobi,
     lane_mul,
+    lane_muladd,
     lane_recur,
     lane_rotate,
     lane_scaled,
+    lane_tile,
     lane_transpose,
+    lane_turn,
     lane_unit,
 )
 
@@ -60,3 +67,57 @@ def test_lane_operations_give_the_scalar_bits(rng):
     assert flagged
     assert not _run(out, x, p1, p2, cc, ss, seed, c1, c1, sn, tile, src,
                     np.tile([0.6, 0.0, 0.8], (2 + LANES, 1)), unit)
+
+
+@numba.njit(cache=False)
+def _run_more(out, x, p1, p2, ang, c1, s1, tile, ix, iy, f, dirs, disk):
+    lane_affine(out, 0, 1.5, x, 0, 0.25, p1, LANES)
+    lane_jacobi(out, LANES, 1.5, x, 0, 0.25, p1, LANES, 0.75, p2, 0)
+    lane_muladd(out, 2 * LANES, x, 0, p1, LANES, p2, 0, p1, 0, 1.0)
+    lane_muladd(out, 3 * LANES, x, 0, p1, LANES, p2, 0, p1, 0, -1.0)
+    lane_copy(out, 4 * LANES, p2, 0)
+    lane_turn(ang, 2 * LANES, 0, 3 * LANES, LANES, c1, s1)
+    lane_tile(tile, 3, 11, p1, ix, ang, iy, f, 1)
+    lane_disk(dirs, 1, disk[0], disk[1], disk[2], disk[3])
+
+
+def test_more_lane_operations_give_the_scalar_bits(rng):
+    # Reference as above: numpy's element-wise IEEE operations in the same order, bitwise.
+    x, p1, p2 = rng.random(LANES), rng.random(2 * LANES), rng.random(LANES)
+    ang, c1, s1 = rng.random(4 * LANES), rng.random(LANES), rng.random(LANES)
+    ix = rng.integers(0, LANES + 1, size=LANES + 1)
+    iy = rng.integers(0, 3 * LANES + 1, size=LANES + 1)
+    f = rng.random(LANES + 1)
+    dirs = rng.normal(size=(2 + LANES, 3))
+    dirs[1] = [0.0, 0.0, 1.0]  # the pole: azimuth (1, 0), rho = 0
+    dirs[2] = [0.3, -0.4, -0.7]  # z <= -1/2: rho^2 = 1 - z
+    dirs[3] *= 1 + 1e-7  # not quite unit: renormalised
+    out, tile, disk = np.zeros(5 * LANES), np.zeros((8, 11)), np.zeros((4, LANES))
+    ang0 = ang.copy()
+    _run_more(out, x, p1, p2, ang, c1, s1, tile, ix, iy, f, dirs, disk)
+    q = p1[LANES:]
+    np.testing.assert_array_equal(out[:LANES], (1.5 * x - 0.25) * q)
+    np.testing.assert_array_equal(out[LANES:2 * LANES], (1.5 * x - 0.25) * q - 0.75 * p2)
+    np.testing.assert_array_equal(out[2 * LANES:3 * LANES], x * q + p2 * p1[:LANES])
+    np.testing.assert_array_equal(out[3 * LANES:4 * LANES], x * q - p2 * p1[:LANES])
+    np.testing.assert_array_equal(out[4 * LANES:], p2)
+    cp, sp = ang0[:LANES], ang0[LANES:2 * LANES]
+    np.testing.assert_array_equal(ang[2 * LANES:3 * LANES], cp * c1 - sp * s1)
+    np.testing.assert_array_equal(ang[3 * LANES:], sp * c1 + cp * s1)
+    flat = tile.reshape(-1)
+    for r in range(LANES):
+        k = 1 + r
+        v = (f[k] * p1[ix[k]:ix[k] + LANES]) * ang[iy[k]:iy[k] + LANES]
+        for j in range(LANES):
+            assert flat[3 + 11 * j + r] == v[j]
+    d = dirs[1:1 + LANES]
+    r = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+    xx, yy, zz = d[:, 0] / r, d[:, 1] / r, d[:, 2] / r
+    s2 = xx * xx + yy * yy
+    s = np.sqrt(s2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho2 = np.where(zz > -0.5, s2 / (1.0 + zz), 1.0 - zz)
+        np.testing.assert_array_equal(disk[0], rho2)
+        np.testing.assert_array_equal(disk[1], np.sqrt(rho2))
+        np.testing.assert_array_equal(disk[2], np.where(s > 0, xx / s, 1.0))
+        np.testing.assert_array_equal(disk[3], np.where(s > 0, yy / s, 0.0))

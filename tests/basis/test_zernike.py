@@ -365,6 +365,26 @@ def test_batch_shape(unit_vectors):
     assert zb.eval(d[1, 2]).shape == (15,)
 
 
+@pytest.mark.parametrize("order", [0, 2, 5, 7, 8, 12, 33])
+def test_blocks_give_the_bits_of_one_direction(order, unit_vectors):
+    # Reference: each direction evaluated alone, which runs the scalar per-direction routine;
+    # blocks of eight directions (lane operations, transposed tile writes, below and from
+    # order 8) run the same operations in the same order, so equality is bitwise. 8 * 129 + 5
+    # directions: full blocks, two parallel tasks and a partial last block; the pole, the
+    # horizon and near-unit vectors among them.
+    d = unit_vectors(8 * 129 + 5, upper=True)
+    d[:4] = [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [1e-300, 0.0, 1.0]]
+    d[4:8] *= 1 + 1e-7
+    zb = HemiZernike(order)
+    got = zb.eval(d)
+    ref = np.stack([zb.eval(w) for w in d])
+    np.testing.assert_array_equal(got, ref)
+    assert np.array_equal(np.signbit(got), np.signbit(ref))
+    out = np.full((d.shape[0], 2 * zb.size), np.nan)[:, ::2]  # not contiguous: a copy
+    zb._eval_flat(d, out)
+    np.testing.assert_array_equal(out, got)
+
+
 def test_near_pole_and_tiny_negative_z():
     zb = HemiZernike(6)
     # 1e-300 off the pole is the pole to float64 accuracy
