@@ -364,12 +364,27 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
             except (ValueError, RuntimeError, np.linalg.LinAlgError, MemoryError) as e:
                 b.rows = [_row(b, d, status=f"failed: {e}") for d in b.dtypes]
                 continue
-            seconds = time.perf_counter() - start
-            for d, (r, nbytes, err) in zip(b.dtypes, measured, strict=True):
+            for d, get in zip(b.dtypes, measured, strict=True):
+                known = b.bytes(d)
+                # a larger storage type of a structure whose smaller one already met the
+                # tolerance (or of one larger than the best) cannot be the smallest: it is
+                # not measured (equal bytes are, the smaller error wins the tie)
+                if best is not None and not exhaustive and known is not None \
+                        and known > best[0]:
+                    b.rows.append(_row(b, d, status=f"skipped: {known} bytes, more than the "
+                                                    f"{best[0]} of {best[3]['label']} "
+                                                    f"({best[3]['dtype']})"))
+                    continue
+                try:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore", RuntimeWarning)
+                        r, nbytes, err = get()
+                except (ValueError, RuntimeError, np.linalg.LinAlgError, MemoryError) as e:
+                    r, err = None, e
                 if r is None:
                     b.rows.append(_row(b, d, status=f"failed: {err}"))
                     continue
-                row = _row(b, d, bytes=nbytes, seconds=seconds, status="measured", **err)
+                row = _row(b, d, bytes=nbytes, status="measured", **err)
                 if judge is not None:
                     row["scene"] = judge(r)
                 row["error"] = row["scene"] if judge is not None else row[metric]
@@ -377,6 +392,10 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
                 b.rows.append(row)
                 if row["meets"] and (best is None or (nbytes, row["error"]) < best[:2]):
                     best = (nbytes, row["error"], r, row)
+            seconds = time.perf_counter() - start  # the build and its measurements
+            for row in b.rows:
+                if row["status"] == "measured":
+                    row["seconds"] = seconds
             if progress:
                 measured = [r for r in b.rows if r["status"] == "measured"]
                 summary = ", ".join(f"{r['dtype']} {r['bytes']} B {r['error']:.4g}"
@@ -459,19 +478,23 @@ class _PairJudge:
         self.fits: dict[tuple, Any] = {}  # lobes fitted once, shared by models and hybrids
         self.description = f"on {len(samples)} pairs, {samples.description}"
 
-    def __call__(self, b: _Build) -> list[tuple[Any, int | None, Any]]:
-        """Return (rounded representation, bytes, errors) per storage type of ``b``."""
+    def __call__(self, b: _Build) -> list[Callable[[], tuple[Any, int | None, Any]]]:
+        """Build ``b``; return per storage type a function: (rounded form, bytes, errors).
+
+        Each storage type is rounded and measured only when its function is called, so
+        that :func:`select` measures only those that can still be the smallest.
+        """
         rep = _make(b.spec, self.brdf, self.fits, self.metric)
-        out: list[tuple[Any, int | None, Any]] = []
-        for d in b.dtypes:
+
+        def measure(d: str) -> tuple[Any, int | None, Any]:
             try:
                 r, nbytes = _rounded(rep, d, b.spec)
             except ValueError as e:
-                out.append((None, None, e))
-                continue
+                return None, None, e
             g = r.eval(self.samples.wi, self.samples.wo)
-            out.append((r, nbytes, value_errors(self.f, g, self.samples)))
-        return out
+            return r, nbytes, value_errors(self.f, g, self.samples)
+
+        return [lambda d=d: measure(d) for d in b.dtypes]
 
 
 class _SampleJudge:
@@ -496,8 +519,8 @@ class _SampleJudge:
         self.description = (f"{len(self.ids)}-fold cross-validated on {len(meas)} held-out "
                             f"samples (seed {seed})")
 
-    def __call__(self, b: _Build) -> list[tuple[Any, int | None, Any]]:
-        """Return (rounded representation, bytes, errors) per storage type of ``b``."""
+    def __call__(self, b: _Build) -> list[Callable[[], tuple[Any, int | None, Any]]]:
+        """Return per storage type of ``b`` a function: (rounded form, bytes, errors)."""
         meas = self.meas
         n, c = meas.values.shape
         preds: dict[str, Any] = {d: np.empty((n, c)) for d in b.dtypes}
@@ -527,7 +550,7 @@ class _SampleJudge:
                 continue
             out.append((r, nbytes, {k: err[k] for k in ("l2", "l2_stderr", "log",
                                                          "log_stderr")}))
-        return out
+        return [lambda x=x: x for x in out]
 
 
 # -- candidates ---------------------------------------------------------------------------------

@@ -442,10 +442,14 @@ def _l2_with_stderr(q: NDArray, q_hat: NDArray,
     """Per-channel relative l2 error and its standard error from the replicate spread."""
     w = samples.weights[:, None]
     reps = samples.replicates
-    num_r = np.zeros((reps, q.shape[1]))
-    den_r = np.zeros((reps, q.shape[1]))
-    np.add.at(num_r, samples.replicate, w * (q_hat - q) ** 2)
-    np.add.at(den_r, samples.replicate, w * q * q)
+    # bincount adds in the order of the pairs, as np.add.at does (the same sums bit for
+    # bit), several times faster
+    num = w * (q_hat - q) ** 2
+    den = w * q * q
+    num_r = np.stack([np.bincount(samples.replicate, weights=num[:, c], minlength=reps)
+                      for c in range(q.shape[1])], axis=1)
+    den_r = np.stack([np.bincount(samples.replicate, weights=den[:, c], minlength=reps)
+                      for c in range(q.shape[1])], axis=1)
     num_r *= reps  # each replicate alone estimates the integrals
     den_r *= reps
     num, den = num_r.mean(axis=0), den_r.mean(axis=0)

@@ -95,9 +95,16 @@ from basis.validation import nonneg_int
 
 from ..brdf import BRDF
 from ..crossval import fold_report, out_of_fold
-from ..factored import D_WARPS, PHI_TURNS, WARPS, FactoredLobe, fit_factored
+from ..factored import D_WARPS, PHI_TURNS, WARPS, FactoredLobe, _share, fit_factored
 from ..measurements import Measurements
-from ..sampling import DEFAULT_WIDTHS, PairSamples, brdf_errors, peak_resolving_pairs
+from ..sampling import (
+    DEFAULT_WIDTHS,
+    PairSamples,
+    _evaluate,
+    brdf_errors,
+    peak_resolving_pairs,
+    value_errors,
+)
 from ..tabulated import TabulatedBRDF, tabulate
 from ._geometry import _Geometry
 from ._solver import _covariance, _solve
@@ -445,7 +452,7 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
     model = _family(family, f.shape[1], opts["lobes"], opts["wavelength"])
     fitted, report = _fit_parametric(family, model, _Geometry(samples.wi, samples.wo), f,
                                      samples.weights, metric, opts)
-    err = brdf_errors(brdf, fitted, _pairs(opts["error_n"], opts["error_seed"], opts["widths"]))
+    err = _errors(brdf, fitted, _pairs(opts["error_n"], opts["error_seed"], opts["widths"]))
     fitted.info = {
         **err, **report,
         "samples": {"fit": samples.description,
@@ -570,6 +577,20 @@ def _pairs(n: int, seed: int, widths: object) -> PairSamples:
     return _cached_pairs(n, seed, key)
 
 
+def _errors(brdf: object, fitted: object, pairs: PairSamples) -> dict:
+    """Return ``brdf_errors(brdf, fitted, pairs)``; the BRDF's values there are kept.
+
+    Inside :func:`project.factored.reuse_samples` (the candidates of ``compress.select``)
+    every fit of one BRDF measures its errors on the same pairs (:func:`_pairs`): the BRDF
+    is evaluated there once (the same values, so the same errors bit for bit).
+    """
+    kept = _share(brdf, ("error pairs", id(pairs)),
+                  lambda: {"f": _evaluate(brdf, "reference_brdf", pairs), "pairs": pairs})
+    if kept["pairs"] is not pairs:  # another set of pairs at a recycled id
+        return brdf_errors(brdf, fitted, pairs)
+    return value_errors(kept["f"], _evaluate(fitted, "approx", pairs), pairs)
+
+
 @functools.lru_cache(maxsize=4)
 def _cached_pairs(n: int, seed: int, widths: tuple[float, ...]) -> PairSamples:
     return peak_resolving_pairs(n, seed=seed, widths=widths)
@@ -603,7 +624,7 @@ def _fit_factored(brdf: object, metric: str, options: dict, start: float) -> Fit
     own, pairs, described = _table_options("factored", metric, options, FACTORED_OPTIONS)
     lobe = fit_factored(brdf, **own)
     fitted = FittedModel("factored", lobe.params)
-    fitted.info = {**lobe.info, **brdf_errors(brdf, fitted, pairs), "fit_l2": lobe.info["error"],
+    fitted.info = {**lobe.info, **_errors(brdf, fitted, pairs), "fit_l2": lobe.info["error"],
                    "metric": metric, "rank": lobe.rank, "bins": lobe.bins, "warp": lobe.warp,
                    "warp_d": lobe.warp_d, "phi_turn": lobe.phi_turn, "restarts": 1,
                    "samples": {"fit": "project.factored.rusinkiewicz_rule",
@@ -617,7 +638,7 @@ def _fit_tabulated(brdf: object, metric: str, options: dict, start: float) -> Fi
     own, pairs, described = _table_options("tabulated", metric, options, TABULATED_OPTIONS)
     tab = tabulate(brdf, **own)
     fitted = FittedModel("tabulated", tab.params)
-    fitted.info = {**tab.info, **brdf_errors(brdf, fitted, pairs), "metric": metric,
+    fitted.info = {**tab.info, **_errors(brdf, fitted, pairs), "metric": metric,
                    "warp_d": tab.warp_d, "phi_turn": tab.phi_turn, "quantity": tab.quantity,
                    "restarts": 1,
                    "samples": {"fit": "project.tabulated.tabulate (grid nodes)",

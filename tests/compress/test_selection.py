@@ -48,7 +48,7 @@ def test_storage_type_is_a_candidate():
     relative) is measured, so a tolerance below it picks float32."""
     ct = CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx")
     cands = [{"form": "model", "family": "lambert+ggx", "restarts": 1}]
-    loose = select(ct, 0.05, candidates=cands, **FAST)
+    loose = select(ct, 0.05, candidates=cands, exhaustive=True, **FAST)
     assert loose.info["dtype"] == "float16" and loose.info["bytes"] == 2 * loose.nparams
     rows = {r["dtype"]: r for r in loose.info["candidates"]}
     assert rows["float64"]["l2"] < 3e-6  # the family holds this model (fit to ~1e-6)
@@ -57,6 +57,29 @@ def test_storage_type_is_a_candidate():
     assert strict.info["dtype"] == "float32" and strict.info["bytes"] == 4 * strict.nparams
     p16 = loose.params["alpha"]
     assert float(p16) == float(np.float16(p16))  # held rounded, as it would be stored
+
+
+def test_larger_storage_types_that_cannot_win_are_not_measured():
+    """Reference: the exhaustive run, which measures every row. Once a float16 row meets the
+    tolerance, the float32 and float64 rows of that structure (more bytes) cannot be the
+    smallest: the lazy run skips them, picks the same row, and every row it measures has
+    the exhaustive run's error exactly (the same pairs, the same fit)."""
+    ct = CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx")
+    cands = [{"form": "model", "family": "lambert+ggx", "restarts": 1},
+             {"form": "modal", "kind": "zernike", "order": 4}]
+    lazy = select(ct, 0.05, candidates=cands, **FAST)
+    full = select(ct, 0.05, candidates=cands, exhaustive=True, **FAST)
+    assert lazy.info["selected"]["label"] == full.info["selected"]["label"]
+    assert lazy.info["dtype"] == full.info["dtype"] == "float16"
+    assert lazy.info["bytes"] == full.info["bytes"]
+    done = {(r["label"], r["dtype"]): r["error"] for r in full.info["candidates"]}
+    rows = {(r["label"], r["dtype"]): r for r in lazy.info["candidates"]}
+    label = lazy.info["selected"]["label"]
+    for d in ("float32", "float64"):
+        assert rows[label, d]["status"].startswith("skipped") and rows[label, d]["bytes"] > \
+            lazy.info["bytes"]
+    measured = [k for k, r in rows.items() if r["status"] == "measured"]
+    assert measured and all(rows[k]["error"] == done[k] for k in measured)
 
 
 def test_predicted_bytes_are_the_stored_bytes():
