@@ -268,7 +268,8 @@ def test_dask_client_gives_the_local_result(folder, tmp_path):
     local = benchmark_merl(folder, tmp_path / "local", workers=1, candidates=CANDS,
                            error_n=4096)
     with distributed.Client(processes=False, n_workers=1, threads_per_worker=1,
-                            dashboard_address=None) as client:
+                            dashboard_address=None,  # HTTP on a free port, not 8787
+                            scheduler_kwargs={"dashboard_address": ":0"}) as client:
         remote = benchmark_merl(folder, tmp_path / "dask", candidates=CANDS, error_n=4096,
                                 client=client)
 

@@ -174,7 +174,8 @@ def test_write_all_on_a_dask_cluster(tmp_path):
     they are computed here (hemisphere_conditioning is deterministic)."""
     distributed = pytest.importorskip("distributed")
     with distributed.Client(processes=False, n_workers=1, threads_per_worker=1,
-                            dashboard_address=None) as client:
+                            dashboard_address=None,  # HTTP on a free port, not 8787
+                            scheduler_kwargs={"dashboard_address": ":0"}) as client:
         written = st.write_all(tmp_path, small=True, client=client)
     assert sorted(written) == sorted(["radial_accuracy", "hemisphere_conditioning",
                                       "sparse_fits", "sharp_lobes", "monte_carlo",

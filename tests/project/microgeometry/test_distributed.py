@@ -42,8 +42,11 @@ def basis() -> HemiZernike:
 @pytest.fixture(scope="module")
 def client():
     """A LocalCluster of 2 worker processes, 1 thread each, no dashboard."""
+    # the scheduler's HTTP server on a free port, not 8787: another cluster on the machine
+    # would make distributed warn, an error under this suite's filterwarnings
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                                  dashboard_address=None) as cluster, \
+                                  dashboard_address=None,
+                                  scheduler_kwargs={"dashboard_address": ":0"}) as cluster, \
             distributed.Client(cluster) as c:
         c.wait_for_workers(2, timeout=120)
         yield c
