@@ -152,7 +152,8 @@ from basis import CoefficientMatrix
 from project.hdf5 import Indirection, check_dataset, check_links, check_self_contained
 from project.io import atomic_path
 
-__all__ = ["CONTENTS", "FORMAT", "READABLE_VERSIONS", "SCHEMA_VERSION", "load", "save"]
+__all__ = ["CONTENTS", "FILE_KINDS", "FORMAT", "READABLE_VERSIONS", "SCHEMA_VERSION",
+           "file_kind", "load", "save"]
 
 #: Value of the ``format`` attribute that marks a scatmodes file.
 FORMAT = "scatmodes.coefficients"
@@ -270,6 +271,56 @@ def save(obj: Any, path: str | os.PathLike, *, dtype: str = "float64") -> Path:
                 _set(p, key, v)
         f.flush()
     return target
+
+
+#: What :func:`file_kind` tells apart.
+FILE_KINDS = ("representation", "checkpoint", "rgl", "merl", "measurements")
+_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+_TENSOR_MAGIC = b"tensor_file\x00"  # RGL-EPFL .bsdf files (project.measured.rgl)
+_CHECKPOINT = "scatmodes-microgeometry-checkpoint-"  # project.microgeometry's --checkpoint
+
+
+def file_kind(path: str | os.PathLike) -> str:
+    """Tell what a file holds, from its first bytes (and a MERL table's ``.binary`` suffix).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+
+    Returns
+    -------
+    str
+        One of :data:`FILE_KINDS`: ``"representation"`` (any other HDF5 file: what
+        :func:`load` reads, or refuses with its reason), ``"checkpoint"`` (a checkpoint of
+        ``project.microgeometry.simulate``), ``"rgl"`` (an RGL-EPFL tensor file), ``"merl"``
+        (a ``.binary`` file) or ``"measurements"`` (anything else: a text table for
+        :func:`project.measured.read_measurements`). Only the kind is told; the readers
+        check the content.
+
+    Raises
+    ------
+    FileNotFoundError, IsADirectoryError
+        The file is missing, or is a folder.
+    """
+    p = Path(os.fspath(path))
+    if not p.exists():
+        raise FileNotFoundError(f"file {str(p)!r} does not exist")
+    if p.is_dir():
+        raise IsADirectoryError(f"the path must be a file, got the directory {str(p)!r}")
+    with open(p, "rb") as fh:
+        head = fh.read(len(_TENSOR_MAGIC))
+    if head[:len(_HDF5_SIGNATURE)] == _HDF5_SIGNATURE:
+        try:
+            with h5py.File(p, "r") as f:
+                fmt = f.attrs.get("format")
+        except Exception:  # noqa: BLE001 - load reports what is wrong with the file
+            fmt = None
+        fmt = fmt.decode(errors="replace") if isinstance(fmt, bytes) else fmt
+        checkpoint = isinstance(fmt, str) and fmt.startswith(_CHECKPOINT)
+        return "checkpoint" if checkpoint else "representation"
+    if head == _TENSOR_MAGIC:
+        return "rgl"
+    return "merl" if p.suffix.lower() == ".binary" else "measurements"
 
 
 def load(path: str | os.PathLike) -> Any:

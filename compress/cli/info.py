@@ -23,9 +23,6 @@ import numpy as np
 
 __all__ = ["describe", "run", "to_text"]
 
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-_CHECKPOINT = "scatmodes-microgeometry-checkpoint-"
-_TENSOR_MAGIC = b"tensor_file\x00"  # RGL-EPFL .bsdf files (project.measured.rgl)
 #: Pairs drawn to estimate the reciprocity of an RGL file (about 0.1 s; standard error ~1 %).
 RECIPROCITY_PAIRS = 2**14
 
@@ -85,24 +82,19 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         with a reciprocal twin for measurements; or ``{"error": message}`` when it cannot be
         estimated (e.g. values 0 everywhere).
     """
-    p = Path(os.fspath(path))
-    if not p.exists():
-        raise FileNotFoundError(f"file {str(p)!r} does not exist")
-    if p.is_dir():
-        raise IsADirectoryError(f"FILE must be a file, got the directory {str(p)!r}")
-    with open(p, "rb") as fh:
-        head = fh.read(len(_TENSOR_MAGIC))
-    base = {"path": str(p), "bytes_on_disk": p.stat().st_size}
-    if head[:len(_HDF5_SIGNATURE)] == _HDF5_SIGNATURE:
-        fmt = _format(p)
-        if isinstance(fmt, str) and fmt.startswith(_CHECKPOINT):
-            return {**base, "kind": "checkpoint", **_checkpoint(p, fmt)}
-        from compress import load
+    from compress.store import file_kind, load
 
+    p = Path(os.fspath(path))
+    kind = file_kind(p)
+    base = {"path": str(p), "bytes_on_disk": p.stat().st_size}
+    if kind == "checkpoint":
+        return {**base, "kind": kind, **_checkpoint(p)}
+    if kind == "representation":
         obj = load(p)  # every check of compress.store; raises ValueError on anything else
-        return {**base, "kind": "representation", **_header(p), **_object(obj)}
-    if head == _TENSOR_MAGIC:
-        return {**base, "kind": "rgl", **_rgl(p)}
+        return {**base, "kind": kind, **_header(p), **_object(obj)}
+    if kind == "rgl":
+        return {**base, "kind": kind, **_rgl(p)}
+    # a MERL .binary is described as the measurement table it is not: the reader says so
     return {**base, "kind": "measurements", **_measurements(p)}
 
 
@@ -208,18 +200,7 @@ def _model(m: Any) -> dict[str, Any]:
 
 
 # -- checkpoints ------------------------------------------------------------------------------
-def _format(p: Path) -> Any:
-    import h5py
-
-    try:
-        with h5py.File(p, "r") as f:
-            v = f.attrs.get("format")
-    except Exception:  # noqa: BLE001 - compress.load reports what is wrong with the file
-        return None
-    return v.decode(errors="replace") if isinstance(v, bytes) else v
-
-
-def _checkpoint(p: Path, fmt: str) -> dict[str, Any]:
+def _checkpoint(p: Path) -> dict[str, Any]:
     import h5py
 
     from project.hdf5 import Indirection, check_self_contained
@@ -260,7 +241,7 @@ def _checkpoint(p: Path, fmt: str) -> dict[str, Any]:
                 raise damaged("dataset 'sum' (the accumulated matrix) is missing or not square")
             seeds = a.get("meta_seeds")
             return {
-                "format": fmt,
+                "format": attr("format", str),
                 "directions_done": attr("directions_done", int),
                 "rays": scalar("rays", int),
                 "chunks": scalar("chunks", int),

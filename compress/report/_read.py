@@ -16,9 +16,6 @@ from basis import CoefficientMatrix
 from ..hybrid import Hybrid
 from ._html import _short
 
-_HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
-_TENSOR_MAGIC = b"tensor_file\x00"
-_CHECKPOINT = "scatmodes-microgeometry-checkpoint-"
 _KINDS_READ = ("a file of compress.save (.h5: coefficient matrix, fitted model or hybrid), a "
                "MERL .binary table, an RGL-EPFL .bsdf file or a measurement table (text, CSV "
                "or Cornell .brdf)")
@@ -48,44 +45,27 @@ def read_source(path: str | os.PathLike) -> Any:
     ValueError
         The file is none of these, or is damaged (the message names it and says why).
     """
-    p = Path(os.fspath(path))
-    if not p.exists():
-        raise FileNotFoundError(f"file {str(p)!r} does not exist")
-    if p.is_dir():
-        raise IsADirectoryError(f"the input must be a file, got the directory {str(p)!r}")
-    with open(p, "rb") as fh:
-        head = fh.read(len(_TENSOR_MAGIC))
-    if head[:len(_HDF5_SIGNATURE)] == _HDF5_SIGNATURE:
-        if _checkpoint(p):
-            raise ValueError(f"{str(p)!r} is a simulation checkpoint, not a representation: "
-                             "finish the run (scatmodes simulate --resume) and report the "
-                             ".h5 file it writes")
-        from ..store import load
-
-        return load(p)
     from project.measured import read_measurements, read_merl, read_rgl
 
-    if head == _TENSOR_MAGIC:
+    from ..store import file_kind, load
+
+    p = Path(os.fspath(path))
+    kind = file_kind(p)
+    if kind == "checkpoint":
+        raise ValueError(f"{str(p)!r} is a simulation checkpoint, not a representation: "
+                         "finish the run (scatmodes simulate --resume) and report the "
+                         ".h5 file it writes")
+    if kind == "representation":
+        return load(p)
+    if kind == "rgl":
         return read_rgl(p)
-    if p.suffix.lower() == ".binary":
+    if kind == "merl":
         return read_merl(p)
     try:
         return read_measurements(p)
     except ValueError as exc:
         raise ValueError(f"{str(p)!r} is not {_KINDS_READ}; read as a measurement table: "
                          f"{' '.join(str(exc).split())}") from None
-
-
-def _checkpoint(p: Path) -> bool:
-    import h5py
-
-    try:
-        with h5py.File(p, "r") as f:
-            fmt = f.attrs.get("format")
-    except Exception:  # noqa: BLE001 - compress.load reports what is wrong with the file
-        return False
-    fmt = fmt.decode(errors="replace") if isinstance(fmt, bytes) else fmt
-    return isinstance(fmt, str) and fmt.startswith(_CHECKPOINT)
 
 
 def _header(p: Path) -> list[tuple[str, str]]:
