@@ -142,12 +142,13 @@ def _cosine_sample(nx, ny, nz, u1, u2):
 
 # -- traversal --------------------------------------------------------------------------------
 
-@njit
+@njit(inline="always")
 def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
     # First crossing of the ray from above the two triangles of cell (cx, cy) (unwrapped
     # position ix, iy) on [t0, t1]. The surface along the segment is piecewise linear with
     # one kink where it crosses the diagonal u = v, so the signed height f = z_ray - z_surf
     # is exact at the piece ends and linear in between.
+    # Inlined into the walk: as a call it spilled and reloaded some twenty registers.
     ny, nx = h.shape
     i1 = cx + 1 if cx + 1 < nx else 0
     j1 = cy + 1 if cy + 1 < ny else 0
@@ -199,16 +200,30 @@ def _grid_step(o, d, inv_d, p, size, inv_size, tol):
     tol * size) the cell it is entering is taken, else the walk would make zero-length steps.
     Multiplications by the precomputed inverses replace the divisions of a naive step: a
     step is a few tens of instructions, and two divisions per axis were a third of them.
+
+    The index stays a float (f, an integer exactly) until the end, and the exit distances
+    of both candidate cells (with and without the boundary rule) are formed before the rule
+    picks one: the walk is a chain of dependent steps, and this takes two int-to-float
+    conversions and a multiply-subtract-multiply off it (the tracer 1.15-1.27x faster). The
+    values are the bits of ``i = floor(p * inv_size)``, then ``((i + 1) * size - o) * inv_d``: f + 1
+    is float(i + 1) exactly.
     """
-    i = int(np.floor(p * inv_size))
+    f = np.floor(p * inv_size)
+    i = int(f)
     if d > 0.0:
-        if (i + 1) * size - p <= tol * size:
-            i += 1
-        return i, ((i + 1) * size - o) * inv_d
+        e = (f + 1.0) * size
+        stay = (e - o) * inv_d
+        enter = ((f + 2.0) * size - o) * inv_d
+        if e - p <= tol * size:
+            return i + 1, enter
+        return i, stay
     if d < 0.0:
-        if p - i * size <= tol * size:
-            i -= 1
-        return i, (i * size - o) * inv_d
+        e = f * size
+        stay = (e - o) * inv_d
+        enter = ((f - 1.0) * size - o) * inv_d
+        if p - e <= tol * size:
+            return i - 1, enter
+        return i, stay
     return i, np.inf
 
 

@@ -186,3 +186,41 @@ def test_coherent_order_is_a_permutation_along_the_morton_curve(nx, ny):
     # stable within a bin: rays of one bin keep their index order
     same = np.diff(keys[order]) == 0
     assert np.all(np.diff(order)[same] > 0)
+
+
+def test_grid_step_gives_the_bits_of_the_integer_form():
+    # reference: the step written with an integer index, i = floor(p / size) moved across a
+    # boundary within tol * size, then ((i + 1) * size - o) / d (resp. i * size), evaluated
+    # here in Python; the kernel keeps the index a float and forms both exits first, which
+    # must change no bit. Points on, just off and within tol of the boundaries, both signs.
+    from project.microgeometry._paths import _grid_step
+
+    def reference(o, d, inv_d, p, size, inv_size, tol):
+        i = int(np.floor(p * inv_size))
+        if d > 0.0:
+            if (i + 1) * size - p <= tol * size:
+                i += 1
+            return i, ((i + 1) * size - o) * inv_d
+        if d < 0.0:
+            if p - i * size <= tol * size:
+                i -= 1
+            return i, (i * size - o) * inv_d
+        return i, np.inf
+
+    rng = np.random.default_rng(4)
+    size = 1.625
+    cells = rng.integers(-3000, 3000, 400).astype(float) * size
+    near = np.concatenate([cells, np.nextafter(cells, np.inf), np.nextafter(cells, -np.inf),
+                           cells + 0.5e-9 * size, cells - 0.5e-9 * size,
+                           cells + 2e-9 * size, cells - 2e-9 * size,
+                           rng.uniform(-5000.0, 5000.0, 400)])
+    for p in near:
+        for d in (0.7, -0.3, 1e-12, -1.0, 0.0):
+            o = p - 3.7 * d
+            inv_d = 1.0 / d if d != 0.0 else 0.0
+            for w in (size, 4.0 * size):
+                args = (o, d, inv_d, p, w, 1.0 / w, 1e-9)
+                i, t = _grid_step(*args)
+                ri, rt = reference(*args)
+                assert i == ri and (t == rt or (np.isinf(t) and np.isinf(rt))), (args, i, t)
+                assert np.float64(t).tobytes() == np.float64(rt).tobytes(), args
