@@ -54,6 +54,8 @@ def _objective(model, g: _Geometry, f: NDArray, w: NDArray, metric: str):
     """Residual and Jacobian functions of the metric, and the row weights for NNLS starts."""
     n, c = f.shape
     cc = g.ci * g.co
+    if hasattr(model, "residuals"):
+        return _fused(model, g, f, w, metric)
     if metric == "l2":
         q = f * cc[:, None]
         scale = np.sqrt(w)[:, None] / np.sqrt(np.sum(w[:, None] * q * q, axis=0))
@@ -80,6 +82,41 @@ def _objective(model, g: _Geometry, f: NDArray, w: NDArray, metric: str):
     # starts: the l2 rows (the log metric is not linear in kd, ks)
     l2 = np.sqrt(w)[:, None] / np.sqrt(np.sum(w[:, None] * (f * cc[:, None]) ** 2, axis=0))
     return res_log, jac_log, l2 * cc[:, None]
+
+
+def _fused(model, g: _Geometry, f: NDArray, w: NDArray, metric: str):
+    """:func:`_objective` for a family whose ``residuals`` gives both in one pass.
+
+    scipy's trust-region reflective method asks for the Jacobian at every accepted point,
+    right after the residuals there: both come from one pass over the pairs, and the
+    Jacobian waits for that call (a rejected step only costs its unused Jacobian).
+    """
+    n, c = f.shape
+    cc = g.ci * g.co
+    q = f * cc[:, None]
+    l2 = np.sqrt(w)[:, None] / np.sqrt(np.sum(w[:, None] * q * q, axis=0))
+    if metric == "l2":
+        scale, target = l2, q
+    else:
+        scale = np.broadcast_to(np.sqrt(w / np.sum(w))[:, None], (n, c))
+        target = np.log1p(f * g.ci[:, None])
+    scale, target = np.ascontiguousarray(scale), np.ascontiguousarray(target)
+    log = metric != "l2"
+    last: dict = {}
+
+    def res(x: NDArray) -> NDArray:
+        r, jac = model.residuals(x, g, scale, target, log)
+        last.update(x=x.copy(), jac=jac)
+        return r
+
+    def jac(x: NDArray) -> NDArray:
+        if "x" not in last or not np.array_equal(x, last["x"]):
+            res(x)
+        out = last.pop("jac")
+        last.clear()
+        return out
+
+    return res, jac, l2 * cc[:, None]
 
 
 def _start(model, g: _Geometry, f: NDArray, row: NDArray, k: int,

@@ -45,9 +45,10 @@ Residuals, one per pair and channel:
   the log metric of :func:`project.sampling.log_rms`.
 
 They are minimised by ``scipy.optimize.least_squares`` (trust-region reflective, bounds,
-analytic Jacobians (for "lambert+ggx" and "lambert+beckmann" a central difference in log
-alpha; for "rr8807" the derivative of Lambda in p comes from the derivative of its
-quadrature, splined alike), roughness and exponents in log scale) from ``restarts`` starting points:
+analytic Jacobians (for "lambert+ggx" and "lambert+beckmann" in closed form, computed with
+the residuals in one pass over the pairs; for "rr8807" the derivative of Lambda in p comes
+from the derivative of its quadrature, splined alike), roughness and exponents in log
+scale) from ``restarts`` starting points:
 restart 0 picks the nonlinear parameters (roughness, or lobe direction and exponent) on a
 small grid, the others draw them at random from ``SeedSequence([seed, restart])``; for each
 start the parameters that enter linearly (kd, ks, rho) are solved by non-negative least
@@ -89,7 +90,7 @@ from collections.abc import Mapping
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from threadpoolctl import threadpool_limits
+from threadpoolctl import ThreadpoolController
 
 from basis.validation import nonneg_int
 
@@ -475,7 +476,7 @@ def _fit_parametric(family: str, model, geom: _Geometry, f: NDArray, w: NDArray,
     # the solver factors tall, narrow Jacobians (samples x ~10 parameters) at every step:
     # a second BLAS thread only adds synchronisation, and when another process holds a core
     # it costs 40x (SVD of 4317 x 15: 4 ms on one thread, 175 ms on two, 2 cores loaded)
-    with threadpool_limits(1, user_api="blas"):
+    with _blas().limit(limits=1, user_api="blas"):
         for k in range(opts["restarts"]):
             rng = np.random.default_rng(np.random.SeedSequence([opts["seed"], k]))
             runs.append(_solve(model, geom, f, w, metric, k, rng, opts["max_nfev"]))
@@ -493,7 +494,7 @@ def _fit_parametric(family: str, model, geom: _Geometry, f: NDArray, w: NDArray,
                       f"fitting pairs {fit_err:.4g} (raise max_nfev or restarts)",
                       RuntimeWarning, stacklevel=stacklevel)
     x = np.clip(run.x, lo, hi)
-    with threadpool_limits(1, user_api="blas"):
+    with _blas().limit(limits=1, user_api="blas"):
         cov = _covariance(run.jac, run.fun, model.p)
     report = {
         f"fit_{metric}": fit_err,
@@ -508,6 +509,12 @@ def _fit_parametric(family: str, model, geom: _Geometry, f: NDArray, w: NDArray,
         "metric": metric,
     }
     return FittedModel(family, model.params(x)), report
+
+
+@functools.cache
+def _blas() -> ThreadpoolController:
+    """Return the thread pools of the loaded libraries, found once (~5 ms a search)."""
+    return ThreadpoolController()
 
 
 def _fit_samples(meas: Measurements, family: str, metric: str, options: dict,

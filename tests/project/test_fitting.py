@@ -96,6 +96,60 @@ def test_recovers_with_log_metric():
     np.testing.assert_allclose(fit.params["ks"], [0.8, 0.9, 1.0], rtol=1e-6)
 
 
+
+def _microfacet_residuals(dist, x, wi, wo, f, w, metric):
+    """The residuals of project.fitting.model's notes, from project.models.CookTorrance and
+    Schlick's Fresnel, x = [kd (3), ks (3), log alpha, f0]."""
+    kd, ks, alpha, f0 = x[:3], x[3:6], np.exp(x[6]), x[7]
+    ci, co = wi[:, 2:3], wo[:, 2:3]
+    cd = 0.5 * np.linalg.norm(wi + wo, axis=1)[:, None]
+    lobe = CookTorrance(0.0, alpha, dist).eval(wi, wo)[:, None]
+    fm = kd / np.pi + ks * lobe * (f0 + (1.0 - f0) * (1.0 - cd) ** 5)
+    if metric == "l2":
+        q = f * ci * co
+        norm = np.sqrt(np.sum(w[:, None] * q * q, axis=0))
+        return (np.sqrt(w)[:, None] * (fm * ci * co - q) / norm).ravel()
+    return (np.sqrt(w / w.sum())[:, None] * (np.log1p(fm * ci) - np.log1p(f * ci))).ravel()
+
+
+@pytest.mark.parametrize("dist", ["ggx", "beckmann"])
+@pytest.mark.parametrize("metric", ["l2", "log"])
+def test_microfacet_residuals_and_jacobian(dist, metric):
+    """The one-pass residuals and closed-form Jacobian (in log alpha) of the microfacet
+    families against the residuals written out from project.models.CookTorrance
+    (rtol 1e-11: the same formulas in another order, amplified by the Beckmann
+    exp(-tan^2 / m^2) as in test_microfacet_family_is_cook_torrance) and against central
+    differences of those residuals (step 1e-5 in every parameter: truncation ~1e-10 times
+    the third derivative, rounding ~1e-16 / 1e-5 = 1e-11 of the residual scale; asserted
+    1e-6 of each column's largest entry)."""
+    from project.fitting._geometry import _Geometry
+    from project.fitting._solver import _objective
+    from project.fitting.microfacet import _Microfacet
+
+    s = peak_resolving_pairs(2048, seed=6)
+    f = CookTorrance([0.3, 0.2, 0.1], 0.2, "beckmann", ior=1.5).eval(s.wi, s.wo)
+    res, jac, _ = _objective(_Microfacet(dist, 3), _Geometry(s.wi, s.wo), f, s.weights,
+                             metric)
+    x = np.array([0.2, 0.3, 0.1, 0.5, 0.7, 0.9, np.log(0.15), 0.3])
+    ref = _microfacet_residuals(dist, x, s.wi, s.wo, f, s.weights, metric)
+    np.testing.assert_allclose(res(x), ref, rtol=1e-11, atol=1e-14 * np.abs(ref).max())
+    j = jac(x)
+    assert j.shape == (ref.size, x.size)
+    h = 1e-5
+    for k in range(x.size):
+        e = np.zeros(x.size)
+        e[k] = h
+        fd = (_microfacet_residuals(dist, x + e, s.wi, s.wo, f, s.weights, metric)
+              - _microfacet_residuals(dist, x - e, s.wi, s.wo, f, s.weights, metric)) / (2 * h)
+        np.testing.assert_allclose(j[:, k], fd, rtol=0, atol=1e-6 * np.abs(fd).max(),
+                                   err_msg=f"column {k}")
+    # the Jacobian asked for at another point than the last residuals is computed there
+    x2 = x + 0.01
+    np.testing.assert_allclose(jac(x2)[:, 6], (res(x2 + 1e-5 * np.eye(8)[6])
+                                               - res(x2 - 1e-5 * np.eye(8)[6])) / 2e-5,
+                               rtol=0, atol=1e-6 * np.abs(jac(x2)[:, 6]).max())
+
+
 # -- the BRDF contract and the report ----------------------------------------------------------
 
 @pytest.fixture(scope="module")
