@@ -43,13 +43,13 @@ alum-bronze           0.55               0.352 +- 0.002  0.180 +- 0.002
 gold-metallic-paint3  0.21               0.142 +- 0.003  0.093 +- 0.001
 ====================  =================  ==============  ==============
 
-(reals in brackets; lambert+ggx as measured for issue 11; log RMS errors 0.015 / 0.029 /
+(reals in brackets; lambert+ggx as measured by compress.select; log RMS errors 0.015 / 0.029 /
 0.014 for rr8807 and 0.011 / 0.010 / 0.019 for dsbrdf.) rr8807 gains most where the
 highlight has long tails: its fits reach sigma ~2e-4 and p at or near the lower bound (0.24
 on blue-acrylic, 0.15 on the other two), with F0 at its bound 1.2 in two channels of the
 paint. The per-slice hemi-EPD lobes follow the theta_d dependence of these peaks far better
 than one microfacet lobe: dsbrdf with 108 reals (864 bytes) is below the tabulated
-separable lobe of issue 11 (0.18 / 0.21 / 0.13 at ~1.5 kB). Fits took 45-75 s (rr8807)
+separable lobe (project.factored: 0.18 / 0.21 / 0.13 at ~1.5 kB). Fits took 45-75 s (rr8807)
 and 135-280 s (dsbrdf) on a shared, loaded machine (one BLAS thread). Across the 4
 restarts rr8807 reached one minimum on all three (costs equal to 1e-5), dsbrdf did not:
 blue-acrylic 0.03294 / 0.03336 / 0.03336 / 0.03489, alum-bronze 0.03401 / 0.03402 / 0.03668

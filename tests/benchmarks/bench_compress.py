@@ -24,7 +24,7 @@ the truncation (cosine-weighted relative L2 against the table, ``compress.errors
 24 x 24 x 48 test set). The header reports numba's threads and the 1-minute load average:
 on a shared machine other processes slow every row alike, so compare rows of one run.
 
-Target (issue 5): order-8 isotropic evaluation >= 20M samples/s on two cores.
+Target: order-8 isotropic evaluation >= 20M samples/s on two cores.
 
 Run: ``python tests/benchmarks/bench_compress.py [--quick] [--pairs N] [--orders 4 8 16]``.
 ``--quick``: 2^18 pairs, orders 4 and 8, 3 repeats, synthetic table (no surrogate).

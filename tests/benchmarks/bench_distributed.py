@@ -14,7 +14,7 @@ directions of 8 rays). Rows:
   threads_per_worker=1, processes=True)``; each worker process runs numba on its share of the
   cores. Every distributed matrix is checked to be bit-identical to the local one.
 
-Columns: wall time; ``/local``, the wall time over the local run's (issue 15 target: at most
+Columns: wall time; ``/local``, the wall time over the local run's (target: at most
 0.75 of the single-process time for 2 workers on 2 cores, 1M rays, order 8; both readings of
 "single process" are printed: all cores, and ``/1 thread``); ``efficiency``, the 1-worker
 time over N times the N-worker time (1 = perfect scaling across workers); ``tasks``, the Dask

@@ -14,7 +14,7 @@ and scaled by the number of incident nodes (its cost is exactly linear in them; 
 time is marked "scaled"). Its accuracy on the full rule would be the same as ours, since it
 is the same quadrature.
 
-Cases (the targets of issue 3, on the 2-core machine):
+Cases (with their targets on the 2-core machine):
 
 1. an isotropic analytic BRDF to HemiZernike(16) with coefficient error <= 1e-8 (relative to
    max |M|): Cook-Torrance GGX (kd 0.2, alpha 0.3, ior 1.5) and Phong; target < 1 s;
@@ -25,12 +25,12 @@ Cases (the targets of issue 3, on the 2-core machine):
    converges like N^-2): target < 5 s. The file is made by ../shared/tools/merl_surrogate.py
    in a temporary folder; the case is skipped when ../shared is absent.
 
-Then one row for a sharp measured material (issue 13): blue-acrylic (a specular ridge about
+Then one row for a sharp measured material: blue-acrylic (a specular ridge about
 0.003 wide in z_i - z_o) to HemiZernike(24) at tolerance 1e-4, skipped like case 3. It prints
 our time, nodes and rule (for the diagonal rule, its nodes along and across the ridge) at
 tolerances 1e-4 and 1e-3, the error against an independent brute-force reference, and the
 same for the old method (the tensor Gauss rule in (z_i, z_o) only, folded onto z_i <= z_o as
-if the table were mirror symmetric, as before issue 13). The
+if the table were mirror symmetric, as the rule did before the diagonal rules). The
 reference resolves the ridge by brute force: Gauss in z_i (``--ref-nodes``) against a fine
 Gauss rule in z_o (``--ref-fine``) so no pair sits exactly on z_i = z_o, 800 graded azimuths
 (``--ref-azimuths``; with 400 the reference itself is 4e-6 off in azimuth).
@@ -163,7 +163,7 @@ def sharp_row(path: Path, args: argparse.Namespace, reps: int) -> None:
             warnings.simplefilter("ignore", RuntimeWarning)
             return project(brdf, zb, tol=tol)
 
-    def old():  # the rule before issue 13: tensor Gauss only, folded as if mirror symmetric
+    def old():  # before the diagonal rules: tensor Gauss only, folded as if mirror symmetric
         saved = quadrature.ISO_ZMAPS, quadrature._mirror_symmetric
         quadrature.ISO_ZMAPS, quadrature._mirror_symmetric = ("gauss",), lambda brdf: True
         try:

@@ -38,7 +38,7 @@ the ratio of a single run is what can be relied on, so every run is shown. Final
 prints the time our simulate needs to reach Q <= ``--qtarget`` at HemiZernike(12) (rays
 doubled from 2^16 until Q meets the target).
 
-Scenes (``--scenes``, issue 6): the brushed-metal (aluminium cylinders on a plane) and velvet
+Scenes (``--scenes``): the brushed-metal (aluminium cylinders on a plane) and velvet
 (transparent capped fibres over a dark base) specimens of :mod:`project.microgeometry`,
 traced by our periodic BVH (``ours simulate`` with HemiZernike(--order), ``ours trace``)
 and by Mitsuba intersecting the same analytic primitives (its ``cylinder``, ``disk``,

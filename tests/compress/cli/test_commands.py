@@ -437,7 +437,7 @@ def test_study_stability_refuses_a_model(tmp_path, capsys):
     assert "--stability takes no MODEL" in capsys.readouterr().err
 
 
-# -- issue 14: suffixes, quantities, checkpoints and signals ---------------------------------
+# -- suffixes, quantities, checkpoints and signals -------------------------------------------
 SIM = ["simulate", "--sigma", "1", "--tau", "6.5", "--resolution", "16", "--order", "2"]
 
 
