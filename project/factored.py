@@ -1241,8 +1241,13 @@ def _shared(brdf: Any, key: tuple) -> Any:
     return None
 
 
-def _share(brdf: Any, key: tuple, make: Callable[[], Any]) -> Any:
-    """Return ``make()``, or inside :func:`reuse_samples` what it returned for ``brdf``."""
+def kept_for(brdf: Any, key: tuple, make: Callable[[], Any]) -> Any:
+    """Return ``make()``, or inside :func:`reuse_samples` what it returned for ``brdf``.
+
+    The store behind :func:`reuse_samples`, for every fit that evaluates one BRDF on one
+    set of points (the factored fits here, the error pairs of :func:`project.fit_model`):
+    ``key`` names the points; arrays kept are made read-only.
+    """
     value = _shared(brdf, key)
     if value is not None:
         return value
@@ -1455,11 +1460,11 @@ def fit_factored(brdf: Any, *, rank: int = 4, bins: tuple[int, ...] = (32, 24, 8
     check_bytes(8.0 * phi.size * (C + 8), f"fitting on a rule of {phi.size} points")
     rule = (n_h, n_d, power, power_d, samples, full, C)
     reused = _shared(brdf, rule) is not None
-    data = _share(brdf, rule, lambda: _sample(brdf, th, td, phi, wq, C, full))
+    data = kept_for(brdf, rule, lambda: _sample(brdf, th, td, phi, wq, C, full))
     if not data["S"].sum() > 0:
         raise ValueError(f"brdf must not vanish on the upper hemisphere, got {brdf!r} = 0 "
                          "at every node of the rule")
-    prob = _share(brdf, (*rule, n_phi), lambda: _Problem(
+    prob = kept_for(brdf, (*rule, n_phi), lambda: _Problem(
         data, phi, s, t, (n_h, n_d), n_phi, 2.0 * math.pi if full else math.pi))
 
     # the steps multiply small matrices (cells x nodes x rank^2): BLAS threads only add

@@ -96,7 +96,7 @@ from basis.validation import nonneg_int
 
 from ..brdf import BRDF
 from ..crossval import fold_report, out_of_fold
-from ..factored import D_WARPS, PHI_TURNS, WARPS, FactoredLobe, _share, fit_factored
+from ..factored import D_WARPS, PHI_TURNS, WARPS, FactoredLobe, fit_factored, kept_for
 from ..measurements import Measurements
 from ..sampling import (
     DEFAULT_WIDTHS,
@@ -591,7 +591,7 @@ def _errors(brdf: object, fitted: object, pairs: PairSamples) -> dict:
     every fit of one BRDF measures its errors on the same pairs (:func:`_pairs`): the BRDF
     is evaluated there once (the same values, so the same errors bit for bit).
     """
-    kept = _share(brdf, ("error pairs", id(pairs)),
+    kept = kept_for(brdf, ("error pairs", id(pairs)),
                   lambda: {"f": _evaluate(brdf, "reference_brdf", pairs), "pairs": pairs})
     if kept["pairs"] is not pairs:  # another set of pairs at a recycled id
         return brdf_errors(brdf, fitted, pairs)
