@@ -190,6 +190,26 @@ def _fcall(builder, name, *vals):
     return builder.call(fn, list(vals))
 
 
+def _unit_lanes(context, builder, aty, dd, ii0):
+    """Load directions ii0 .. ii0 + 7 of an (n, 3) array as x, y, z lanes, divided by |w|."""
+    data = context.make_array(aty)(context, builder, dd).data
+    ity = ii0.type
+    base = builder.mul(ii0, ir.Constant(ity, 3))
+    undef = ir.Constant(_V8, ir.Undefined)
+    comp = []
+    for c in range(3):
+        v = undef
+        for j in range(LANES):
+            p = builder.gep(data, [builder.add(base, ir.Constant(ity, 3 * j + c))])
+            v = builder.insert_element(v, builder.load(p), ir.Constant(ir.IntType(32), j))
+        comp.append(v)
+    x, y, z = comp
+    r = _fcall(builder, "llvm.sqrt", builder.fadd(builder.fadd(builder.fmul(x, x),
+                                                               builder.fmul(y, y)),
+                                                  builder.fmul(z, z)))
+    return builder.fdiv(x, r), builder.fdiv(y, r), builder.fdiv(z, r)
+
+
 @intrinsic
 def lane_unit(typingctx, dirs, i0, zz, sn, c1, s1, smin):
     """Renormalise directions i0..i0+7 of ``dirs`` (n, 3) and store their polar coordinates.
@@ -204,22 +224,7 @@ def lane_unit(typingctx, dirs, i0, zz, sn, c1, s1, smin):
     def codegen(context, builder, signature, args):
         t = signature.args
         dd, ii0, z_, s_, c_, si_, sm = args
-        data = context.make_array(t[0])(context, builder, dd).data
-        ity = ii0.type
-        base = builder.mul(ii0, ir.Constant(ity, 3))
-        undef = ir.Constant(_V8, ir.Undefined)
-        comp = []
-        for c in range(3):
-            v = undef
-            for j in range(LANES):
-                p = builder.gep(data, [builder.add(base, ir.Constant(ity, 3 * j + c))])
-                v = builder.insert_element(v, builder.load(p), ir.Constant(ir.IntType(32), j))
-            comp.append(v)
-        x, y, z = comp
-        r = _fcall(builder, "llvm.sqrt", builder.fadd(builder.fadd(builder.fmul(x, x),
-                                                                   builder.fmul(y, y)),
-                                                      builder.fmul(z, z)))
-        x, y, z = builder.fdiv(x, r), builder.fdiv(y, r), builder.fdiv(z, r)
+        x, y, z = _unit_lanes(context, builder, t[0], dd, ii0)
         s = _fcall(builder, "llvm.sqrt", builder.fadd(builder.fmul(x, x), builder.fmul(y, y)))
         zero = ir.Constant(_V8, [0.0] * LANES)
         pos = builder.fcmp_ordered(">", s, zero)
@@ -227,7 +232,7 @@ def lane_unit(typingctx, dirs, i0, zz, sn, c1, s1, smin):
         sv = builder.select(pos, builder.fdiv(y, s), zero)
         sm = context.cast(builder, sm, t[6], types.float64)
         low = builder.and_(pos, builder.fcmp_ordered("<", s, _splat(builder, sm)))
-        zi = ir.Constant(ity, 0)
+        zi = ir.Constant(ii0.type, 0)
         for arr, aty, v in ((z_, t[2], z), (s_, t[3], s), (c_, t[4], cv), (si_, t[5], sv)):
             _store(context, builder, aty, arr, zi, v)
         bits = builder.bitcast(low, ir.IntType(LANES))
@@ -326,22 +331,7 @@ def lane_disk(typingctx, dirs, i0, rho2, rho, c1, s1):
     def codegen(context, builder, signature, args):
         t = signature.args
         dd, ii0, r2_, rh_, c_, si_ = args
-        data = context.make_array(t[0])(context, builder, dd).data
-        ity = ii0.type
-        base = builder.mul(ii0, ir.Constant(ity, 3))
-        undef = ir.Constant(_V8, ir.Undefined)
-        comp = []
-        for c in range(3):
-            v = undef
-            for j in range(LANES):
-                p = builder.gep(data, [builder.add(base, ir.Constant(ity, 3 * j + c))])
-                v = builder.insert_element(v, builder.load(p), ir.Constant(ir.IntType(32), j))
-            comp.append(v)
-        x, y, z = comp
-        r = _fcall(builder, "llvm.sqrt", builder.fadd(builder.fadd(builder.fmul(x, x),
-                                                                   builder.fmul(y, y)),
-                                                      builder.fmul(z, z)))
-        x, y, z = builder.fdiv(x, r), builder.fdiv(y, r), builder.fdiv(z, r)
+        x, y, z = _unit_lanes(context, builder, t[0], dd, ii0)
         s2 = builder.fadd(builder.fmul(x, x), builder.fmul(y, y))
         s = _fcall(builder, "llvm.sqrt", s2)
         zero = ir.Constant(_V8, [0.0] * LANES)
@@ -351,7 +341,7 @@ def lane_disk(typingctx, dirs, i0, rho2, rho, c1, s1):
         sv = builder.select(pos, builder.fdiv(y, s), zero)
         far = builder.fcmp_ordered(">", z, ir.Constant(_V8, [-0.5] * LANES))
         q = builder.select(far, builder.fdiv(s2, builder.fadd(one, z)), builder.fsub(one, z))
-        zi = ir.Constant(ity, 0)
+        zi = ir.Constant(ii0.type, 0)
         for arr, aty, v in ((r2_, t[2], q), (rh_, t[3], _fcall(builder, "llvm.sqrt", q)),
                             (c_, t[4], cv), (si_, t[5], sv)):
             _store(context, builder, aty, arr, zi, v)
