@@ -61,8 +61,8 @@ from .jit import (
     lane_mul,
     lane_muladd,
     lane_recur,
-    pjit,
-    prange,
+    loopjit,
+    run_parallel,
     writable,
 )
 from .validation import UNIT_ATOL, as_directions, broadcast_batch, check_bytes
@@ -186,8 +186,9 @@ class Evaluator:
     def _iso(self, wi: NDArray, wo: NDArray, out: NDArray, atol: float) -> bool:
         """Run the fused kernel; True if some |w|^2 is further than ``atol`` from 1 (or NaN)."""
         flags = np.zeros((wi.shape[0] + _CHUNK - 1) // _CHUNK, dtype=np.uint8)
-        _iso_kernel(writable(wi), writable(wo), self._coef, self._tri, self._coefa, self._tria,
-                    _FORMS[self.cm.basis.kind], self.fcos, self.min_cos, atol, flags, out)
+        run_parallel(_iso_kernel, flags.size, writable(wi), writable(wo), self._coef,
+                     self._tri, self._coefa, self._tria, _FORMS[self.cm.basis.kind], self.fcos,
+                     self.min_cos, atol, flags, out)
         return bool(flags.any())
 
     def _dense_flat(self, wi: NDArray, wo: NDArray, out: NDArray) -> None:
@@ -488,15 +489,15 @@ def _lane_blocks(typingctx, res, coef, tri, coefa, tria, sp, sa, wr, wim, ca, cb
     return sig, codegen
 
 
-@pjit
-def _iso_kernel(wi, wo, coef, tri, coefa, tria, form, fcos, min_cos, atol, flags,
+@loopjit
+def _iso_kernel(first, stop, wi, wo, coef, tri, coefa, tria, form, fcos, min_cos, atol, flags,
                 out):  # pragma: no cover - compiled
-    # wi, wo: (n, 3) unit vectors; coef: (nb, nc, K) packed Chebyshev blocks; tri: (nb,)
-    # packed length per block; coefa: (nb, nc, K') packed antisymmetric parts, tria: (nb,)
-    # their lengths (all 0 for symmetric blocks); form: 0 zernike, 1 odd, 2 even, 3 sh;
-    # out: (n, nc).
+    # Tasks first .. stop - 1 (run_parallel) of _CHUNK pairs; wi, wo: (n, 3) unit vectors;
+    # coef: (nb, nc, K) packed Chebyshev blocks; tri: (nb,) packed length per block; coefa:
+    # (nb, nc, K') packed antisymmetric parts, tria: (nb,) their lengths (all 0 for
+    # symmetric blocks); form: 0 zernike, 1 odd, 2 even, 3 sh; out: (n, nc).
     # flags (ntask,): set to 1 for a task holding a vector with | |w|^2 - 1 | > atol or NaN.
-    # Tasks of _CHUNK pairs, each in steps of LANES pairs; a last partial step runs on
+    # Each task runs in steps of LANES pairs; a last partial step runs on
     # copies padded with the pole (whose values are dropped). Scratch is lane-fastest:
     # entry r of lane j at r * LANES + j. tt holds T_a(x_i) at rows a < kk, T_a(x_o) at
     # rows kk + a; sp, sa the products S_ab, D_ab in the packed order of _chebyshev_blocks.
@@ -507,10 +508,9 @@ def _iso_kernel(wi, wo, coef, tri, coefa, tria, form, fcos, min_cos, atol, flags
     npa = 0
     for m in range(nb):
         npa = max(npa, tria[m])
-    ntask = (n + _CHUNK - 1) // _CHUNK
     lift = min_cos if fcos else 0.0
     s_lift = math.sqrt(1.0 - lift * lift)
-    for task in prange(ntask):
+    for task in range(first, stop):
         tt = np.empty(2 * kk * LANES)
         sp = np.empty(npk * LANES)
         sa = np.empty(max(npa, 1) * LANES)

@@ -19,9 +19,9 @@ from .jit import (
     lane_scaled,
     lane_transpose,
     lane_unit,
+    loopjit,
     njit,
-    pjit,
-    prange,
+    run_parallel,
     writable,
 )
 from .quadrature import HemisphereRule, hemisphere_rule, sphere_rule
@@ -324,7 +324,8 @@ def _seed_floor(lmax: int, norm: float) -> float:
 def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, cols, out):
     """Evaluate into ``out``; the lane kernel and its per-direction fallback give the same bits."""
     off = triangular_offsets(lmax)
-    _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, rows[0], rows[1], smin, cols, out)
+    run_parallel(_sh_eval_kernel, (dirs.shape[0] + _TASK - 1) // _TASK, dirs, lmax, parity,
+                 norm, a, b, d, off, rows[0], rows[1], smin, cols, out)
 
 
 @njit(inline="always")
@@ -578,16 +579,17 @@ def _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out):
                     rowb[k - 2 * m] = pb * fsb
 
 
-@pjit
-def _sh_eval_kernel(dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
-    # dirs (n, 3) float64 ~unit vectors; a, b (T,) recurrence tables by column m, ra, rb the
-    # same by row l, d (lmax+1,) sectoral factors, off (lmax+1,) column starts; out (n, size)
-    # with size fixed by parity; cols (size,) the column of each function in the full basis.
-    # One parallel kernel for both strategies, so a cold start compiles it once whatever the
-    # degrees used.
+@loopjit
+def _sh_eval_kernel(first, stop, dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols,
+                    out):
+    # Tasks first .. stop - 1 of _TASK directions (run_parallel); dirs (n, 3) float64 ~unit
+    # vectors; a, b (T,) recurrence tables by column m, ra, rb the same by row l, d (lmax+1,)
+    # sectoral factors, off (lmax+1,) column starts; out (n, size) with size fixed by
+    # parity; cols (size,) the column of each function in the full basis. One kernel for
+    # both strategies, so a cold start compiles it once whatever the degrees used.
     n = dirs.shape[0]
     pairs = parity == 2 and lmax < _PAIR_LMAX
-    for task in prange((n + _TASK - 1) // _TASK):
+    for task in range(first, stop):
         lo = task * _TASK
         hi = min(n, lo + _TASK)
         if pairs:

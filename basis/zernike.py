@@ -21,9 +21,9 @@ from .jit import (
     lane_rotate,
     lane_tile,
     lane_turn,
+    loopjit,
     njit,
-    pjit,
-    prange,
+    run_parallel,
     writable,
 )
 from .quadrature import HemisphereRule, hemisphere_rule
@@ -100,8 +100,9 @@ class HemiZernike(Basis):
             self._eval_flat(dirs, res)
             out[...] = res
             return
-        _zernike_kernel(writable(dirs), self._order, self._coef, self._start, self._norm,
-                        self._order < _PAIR_ORDER, out)
+        run_parallel(_zernike_kernel, (dirs.shape[0] + _TASK - 1) // _TASK, writable(dirs),
+                     self._order, self._coef, self._start, self._norm,
+                     self._order < _PAIR_ORDER, out)
 
     def exact_rule(self) -> HemisphereRule:
         """Return a product rule exact for every product of two functions of this basis.
@@ -457,13 +458,14 @@ def _zernike_pairs(dirs, lo, hi, order, coef, start, norm, out):
                         rowb[ks] = vb * slb
 
 
-@pjit
-def _zernike_kernel(dirs, order, coef, start, norm, pairs, out):
-    # dirs (p, 3) ~unit vectors with z >= 0 (up to rounding); coef (T, 3) from _radial_tables,
-    # start (order+1,) its column starts; norm (order+1,) = sqrt((n+1)/pi);
-    # out (p, (order+1)(order+2)/2) C-contiguous.
+@loopjit
+def _zernike_kernel(first, stop, dirs, order, coef, start, norm, pairs, out):
+    # Tasks first .. stop - 1 of _TASK directions (run_parallel); dirs (p, 3) ~unit vectors
+    # with z >= 0 (up to rounding); coef (T, 3) from _radial_tables, start (order+1,) its
+    # column starts; norm (order+1,) = sqrt((n+1)/pi); out (p, (order+1)(order+2)/2)
+    # C-contiguous.
     p = dirs.shape[0]
-    for task in prange((p + _TASK - 1) // _TASK):
+    for task in range(first, stop):
         lo = task * _TASK
         if pairs:
             _zernike_pairs(dirs, lo, min(p, lo + _TASK), order, coef, start, norm, out)

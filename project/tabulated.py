@@ -112,7 +112,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import ndimage
 
 from basis.directions import from_rusinkiewicz
-from basis.jit import pjit, prange, writable
+from basis.jit import loopjit, run_parallel, writable
 from basis.validation import check_bytes, choice
 
 from ._halfdiff import cell, cell_trilinear, half_difference, periodic_cell
@@ -301,8 +301,10 @@ class TabulatedBRDF(BRDF):
 
     def _eval(self, wi: NDArray[np.float64], wo: NDArray[np.float64]) -> NDArray[np.float64]:
         out = np.empty((wi.shape[0], self.channels))
-        _tabulated_kernel(writable(wi), writable(wo), self._t, D_WARPS[self.warp_d],
-                          2.0 * math.pi * PHI_TURNS[self.phi_turn], self.quantity == "q", out)
+        # ~0.3 us a pair: parts of 256 pairs outweigh the hand-off to a thread
+        run_parallel(_tabulated_kernel, wi.shape[0], writable(wi), writable(wo), self._t,
+                     D_WARPS[self.warp_d], 2.0 * math.pi * PHI_TURNS[self.phi_turn],
+                     self.quantity == "q", out, grain=256)
         return out
 
     def __repr__(self) -> str:
@@ -311,15 +313,17 @@ class TabulatedBRDF(BRDF):
                 f"channels={self.channels}, nbytes={self.nbytes})")
 
 
-@pjit
-def _tabulated_kernel(wi, wo, t, pd, period, divide, out):  # pragma: no cover - compiled
-    # wi, wo: (n, 3) directions with z >= 0; t: (n_h, n_d, m, c) node values; out: (n, c).
-    # Angles from h = wi + wo and wi - wo (as MERLBRDF), so the exchange of wi and wo leaves
-    # theta_h, theta_d unchanged bit for bit and negates wi - wo exactly (phi_d + pi).
-    n = wi.shape[0]
+@loopjit
+def _tabulated_kernel(first, stop, wi, wo, t, pd, period, divide,
+                      out):  # pragma: no cover - compiled
+    # Pairs first .. stop - 1 (run_parallel). wi, wo: (n, 3) directions with z >= 0;
+    # t: (n_h, n_d, m, c) node values; out: (n, c). Angles from h = wi + wo and wi - wo (as
+    # MERLBRDF), so the exchange of wi and wo leaves theta_h, theta_d unchanged bit for bit
+    # and negates wi - wo exactly (phi_d + pi).
     nh, nd, m, nc = t.shape[0], t.shape[1], t.shape[2], t.shape[3]
     half = period < 4.0
-    for p in prange(n):
+    # unsigned p: a[p] then skips numba's negative-index wraparound (30 % faster)
+    for p in range(np.uint64(first), np.uint64(stop)):
         theta_h, theta_d, phi_d, iz, oz = half_difference(wi, wo, p, half)
         if phi_d < 0.0:
             phi_d += 2.0 * math.pi

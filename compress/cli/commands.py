@@ -268,12 +268,12 @@ def _demo(args: argparse.Namespace) -> int:
     out = _output_dir(args.out)
     orders = _orders(args.orders)
     study_orders = _orders(args.study_orders, "--study-orders")
-    # the kernels of steps 2 and 3 compile in a second process while step 1 runs (only a
-    # first run compiles; later ones load them from numba's cache)
+    # on a first run (the first cache miss) the kernels of steps 2 and 3 compile in a second
+    # process while step 1 runs; later runs load them from numba's cache and start none
     steps: dict[str, tuple[int, ...]] = {"study": ()}
     if args.rays > 0:
         steps["simulation"] = (args.resolution,)
-    with demo.CompileAhead(steps if args.compile_ahead else {}) as ahead:
+    with demo.CompileAhead(steps if args.compile_ahead else {}, lazy=True) as ahead:
         return _demo_steps(args, demo, out, orders, study_orders, ahead)
 
 

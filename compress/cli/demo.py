@@ -16,6 +16,7 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
+import threading
 import time
 import warnings
 from pathlib import Path
@@ -23,6 +24,7 @@ from typing import Any
 
 import numpy as np
 from matplotlib.figure import Figure
+from numba.core import event as numba_event
 
 import basis
 from project.io import atomic_path
@@ -52,6 +54,11 @@ class CompileAhead:
     steps : dict of str to tuple of int
         Step name (a key of :data:`COMPILE_STEPS`) -> its integer arguments, compiled in
         this order.
+    lazy : bool
+        Start the process only when this process first compiles a kernel (numba's
+        ``numba:compile`` event, which fires on a cache miss only): a run whose kernels are
+        all cached starts none, since loading them twice would only take a core from the
+        caller. False starts it at once.
 
     Notes
     -----
@@ -59,29 +66,64 @@ class CompileAhead:
     :mod:`multiprocessing`, whose spawned children re-import the caller's main script.
     """
 
-    def __init__(self, steps: dict[str, tuple[int, ...]]) -> None:
+    def __init__(self, steps: dict[str, tuple[int, ...]], *, lazy: bool = False) -> None:
+        self._steps = dict(steps)
         self._pending = list(steps)
         self._proc: subprocess.Popen | None = None
+        self._lock = threading.Lock()
+        self._listener: Any = None
         if not steps:
             return
-        root = str(Path(__file__).resolve().parents[2])  # the folder holding compress/
-        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-            [root, *filter(None, [os.environ.get("PYTHONPATH")])]))
-        argv = [f"{name}:{','.join(map(str, args))}" for name, args in steps.items()]
-        try:
-            self._proc = subprocess.Popen(
-                [sys.executable, "-c", "from compress.cli.demo import _compile_main; "
-                 "_compile_main()", *argv], stdin=subprocess.DEVNULL,
-                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True)
-        except OSError:  # no second process here: each step compiles its own kernels
-            self._pending = []
+        if lazy:
+            self._listener = _OnCompile(self._start)
+            numba_event.register("numba:compile", self._listener)
+        else:
+            self._start()
+
+    def _start(self) -> None:
+        with self._lock:
+            self._unlisten()
+            if self._proc is not None or not self._pending:
+                return
+            root = str(Path(__file__).resolve().parents[2])  # the folder holding compress/
+            env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+                [root, *filter(None, [os.environ.get("PYTHONPATH")])]))
+            argv = [f"{name}:{','.join(map(str, self._steps[name]))}" for name in self._pending]
+            try:
+                self._proc = subprocess.Popen(
+                    [sys.executable, "-c", "from compress.cli.demo import _compile_main; "
+                     "_compile_main()", *argv], stdin=subprocess.DEVNULL,
+                    stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, env=env, text=True)
+            except OSError:  # no second process here: each step compiles its own kernels
+                self._pending = []
+
+    def _unlisten(self) -> None:
+        if self._listener is not None:
+            numba_event.unregister("numba:compile", self._listener)
+            self._listener = None
+
+    @property
+    def started(self) -> bool:
+        """Whether the compiling process was started."""
+        return self._proc is not None
 
     def wait(self, name: str) -> bool:
-        """Wait until the kernels of step ``name`` are compiled; return True if they are."""
-        if self._proc is None or name not in self._pending:
+        """Wait until the kernels of step ``name`` are compiled; return True if they are.
+
+        False if the step was not asked for, was already waited for, or its kernels are
+        left to the caller (no process was started, or it failed).
+        """
+        with self._lock:
+            proc = self._proc
+            if proc is None:
+                self._unlisten()  # from here on the caller compiles what it needs itself
+                if name in self._pending:
+                    del self._pending[:self._pending.index(name) + 1]
+                return False
+        if name not in self._pending:
             return False
         while self._pending:
-            line = self._proc.stdout.readline().strip()  # type: ignore[union-attr]
+            line = proc.stdout.readline().strip()  # type: ignore[union-attr]
             if not line:  # the process ended early: the steps left compile in place
                 self._pending = []
                 return False
@@ -93,19 +135,34 @@ class CompileAhead:
 
     def close(self) -> None:
         """Stop the process if it is still compiling (numba's cache writes are atomic)."""
-        if self._proc is not None:
-            if self._proc.poll() is None:
-                self._proc.terminate()
-            self._proc.wait()
-            self._proc.stdout.close()  # type: ignore[union-attr]
-            self._proc = None
-        self._pending = []
+        with self._lock:
+            self._unlisten()
+            if self._proc is not None:
+                if self._proc.poll() is None:
+                    self._proc.terminate()
+                self._proc.wait()
+                self._proc.stdout.close()  # type: ignore[union-attr]
+                self._proc = None
+            self._pending = []
 
     def __enter__(self) -> CompileAhead:
         return self
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class _OnCompile(numba_event.Listener):
+    """Calls ``start`` when numba begins to compile a kernel (a cache miss)."""
+
+    def __init__(self, start: Any) -> None:
+        self._start = start
+
+    def on_start(self, event: Any) -> None:
+        self._start()
+
+    def on_end(self, event: Any) -> None:
+        pass
 
 
 def _compile_main() -> None:

@@ -50,7 +50,7 @@ import re
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis.jit import njit, pjit, prange
+from basis.jit import loopjit, njit, run_parallel
 
 from ._paths import _ESCAPED, _HIT, _LOST, _grid_step
 
@@ -367,8 +367,8 @@ class BVH:
         t = np.empty(n)
         prim = np.empty(n, np.int64)
         nrm = np.empty((n, 3))
-        _intersect_kernel(o, d, float(tmax), self.lo, self.hi, self.link, self.ptype,
-                          self.pdata, t, prim, nrm)
+        run_parallel(_intersect_kernel, n, o, d, float(tmax), self.lo, self.hi, self.link,
+                     self.ptype, self.pdata, t, prim, nrm, grain=_GRAIN)
         hit = prim >= 0
         prim[hit] = self.source[prim[hit]]
         return t, prim, nrm
@@ -402,8 +402,9 @@ class BVH:
         prim = np.empty(n, np.int64)
         nrm = np.empty((n, 3))
         lx, ly = self.period
-        _periodic_kernel(o, d, lx, ly, self.lo[0, 2], self.hi[0, 2], max_steps, self.lo,
-                         self.hi, self.link, self.ptype, self.pdata, st, t, prim, nrm)
+        run_parallel(_periodic_kernel, n, o, d, lx, ly, self.lo[0, 2], self.hi[0, 2], max_steps,
+                     self.lo, self.hi, self.link, self.ptype, self.pdata, st, t, prim, nrm,
+                     grain=_GRAIN)
         hit = prim >= 0
         prim[hit] = self.source[prim[hit]]
         return st, t, prim, nrm
@@ -1007,10 +1008,14 @@ def _box(node, ox, oy, oz, ix, iy, iz, tmin, tmax, lo, hi):
     return t0 if t0 <= t1 else np.inf
 
 
-@pjit
-def _intersect_kernel(o, d, tmax, lo, hi, link, ptype, pdata, t, prim, nrm):
-    # o, d (n, 3) rays; t (n,), prim (n,), nrm (n, 3) out
-    for r in prange(o.shape[0]):
+#: rays per part of run_parallel in the query kernels: a query costs about a microsecond
+_GRAIN = 64
+
+
+@loopjit
+def _intersect_kernel(first, stop, o, d, tmax, lo, hi, link, ptype, pdata, t, prim, nrm):
+    # rays first .. stop - 1 (run_parallel) of o, d (n, 3); t (n,), prim (n,), nrm (n, 3) out
+    for r in range(first, stop):
         k, th = _closest(o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2], 0.0, tmax, lo,
                          hi, link, ptype, pdata)
         prim[r] = k
@@ -1065,11 +1070,11 @@ def _periodic_hit(ox, oy, oz, dx, dy, dz, lx, ly, zmin, zmax, max_steps, lo, hi,
     return _LOST, t, 0.0, 0.0, 0.0, -1, True
 
 
-@pjit
-def _periodic_kernel(o, d, lx, ly, zmin, zmax, max_steps, lo, hi, link, ptype, pdata, st, t,
-                     prim, nrm):
-    # o, d (n, 3) rays; st, t, prim (n,), nrm (n, 3) out
-    for r in prange(o.shape[0]):
+@loopjit
+def _periodic_kernel(first, stop, o, d, lx, ly, zmin, zmax, max_steps, lo, hi, link, ptype, pdata,
+                     st, t, prim, nrm):
+    # rays first .. stop - 1 (run_parallel) of o, d (n, 3); st, t, prim (n,), nrm (n, 3) out
+    for r in range(first, stop):
         s, th, nx, ny, nz, k, _ = _periodic_hit(o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1],
                                              d[r, 2], lx, ly, zmin, zmax, max_steps, lo, hi,
                                              link, ptype, pdata)

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import itertools
 import os
 import signal
 import threading
@@ -41,7 +42,7 @@ from typing import Any
 import numpy as np
 
 from basis import Basis, CoefficientMatrix, validation
-from basis.jit import pjit, prange
+from basis.jit import loopjit, run_parallel
 from basis.validation import check_bytes, dask_client
 
 from ..io import atomic_path, temporary_name
@@ -231,8 +232,9 @@ def simulate(
         (Westin's N_p; b(U) is evaluated once for all of them).
     chunk : int, optional
         Incident directions per chunk (one batch of the batch-means error estimate, and the
-        unit of checkpointing, and of the work of one thread: each of the numba threads
-        traces and accumulates whole chunks, so use at least a few chunks per thread).
+        unit of checkpointing, and of the work of one thread: each of the threads
+        (``numba.get_num_threads()``) traces and accumulates whole chunks, so use at least a
+        few chunks per thread).
         Default: about 32768 rays per chunk.
     checkpoint : path, optional
         HDF5 file to which the accumulators are saved every ``checkpoint_interval`` seconds,
@@ -303,7 +305,7 @@ def simulate(
     bits; a task that Dask runs again after its worker died returns the same values and is
     counted once. The checkpoint (written by this process) holds the
     chunks folded so far, and can be resumed with or without a client. A worker process traces
-    one task at a time, its chunks spread over numba threads that take its share of the
+    one task at a time, its chunks spread over threads that take its share of the
     host's cores (the cores over the worker processes on that host), so one Dask thread per
     worker is enough
     (``LocalCluster(n_workers=N, threads_per_worker=1)``). Workers need
@@ -343,7 +345,7 @@ def simulate(
     check_bytes(8.0 * (_MATRIX_COPIES * k * k + per_chunk),
                 f"simulate with {basis!r} ({k} functions: {_MATRIX_COPIES} ({k}, {k}) "
                 f"accumulator matrices) and {chunk * targets} rays per chunk")
-    # chunks traced at once in this process (see _chunk_deltas): one per numba thread, as
+    # chunks traced at once in this process (see _Lanes): one per numba thread, as
     # many as memory allows; each holds its work arrays, its (K, K) result and two queued
     lanes = max(1, min(_threads(), int((validation.MAX_BYTES / 8.0 - _MATRIX_COPIES * k * k)
                                        // (per_chunk + 3 * k * k))))
@@ -432,43 +434,31 @@ def _threads() -> int:
     return int(numba.get_num_threads())
 
 
-def _concurrent_launches() -> bool:
-    """Whether numba's threading layer lets several threads launch parallel kernels at once.
-
-    The OpenMP and TBB layers do; the workqueue layer aborts the process. Which layer numba
-    chose is known only once a parallel kernel has run in this process.
-    """
-    import numba
-
-    try:
-        return numba.threading_layer() in ("omp", "tbb")
-    except ValueError:  # no parallel kernel has run yet
-        return False
-
-
 def _one_thread() -> None:
     import numba
 
-    numba.set_num_threads(1)  # per thread: the lane's own kernels run serially
+    # per thread (numba's thread count is thread-local, and run_parallel reads it): the
+    # lane's own kernels and basis evaluations run in the lane's thread
+    numba.set_num_threads(1)
 
 
 class _Lanes:
-    """Chunks computed ahead, in order, each by one thread ("lane") on one numba thread.
+    """Chunks computed ahead, in order, each whole by one thread ("lane").
 
-    Splitting every chunk over all threads ends each of its five parallel loops (tracing,
-    the two basis evaluations, the two accumulation loops) with a wait for the slowest
-    thread: on a machine shared with other jobs, a thread that loses its core for a time
-    slice stalls all of them, measured at up to half the run's time for a million rays.
-    Here ``lanes`` threads each trace and accumulate whole chunks and take the next one as
-    soon as they finish, waiting for nobody; :meth:`delta` hands the chunks' results over
-    in order, keeping at most ``2 * lanes`` queued. A chunk's values do not depend on how
-    many threads computed it (per-ray random streams, a fixed summation order), so every
-    lane count gives the same bits.
+    Splitting every chunk over all threads ends each of its steps (tracing, the two basis
+    evaluations, the two accumulation loops) with a wait for the slowest thread: on a
+    machine shared with other jobs, a thread that loses its core for a time slice stalls all
+    of them, measured at up to half the run's time for a million rays. Here ``lanes``
+    threads each trace and accumulate whole chunks and take the next one as soon as they
+    finish, waiting for nobody; :meth:`delta` hands the chunks' results over in order,
+    keeping at most ``2 * lanes`` queued. A chunk's values do not depend on how many threads
+    computed it (per-ray random streams, a fixed summation order), so every lane count gives
+    the same bits.
 
     ``todo`` yields the (start, directions) of the chunks that :meth:`delta` will be asked
-    for, in that order. With one lane, one chunk, or a threading layer that forbids
-    concurrent launches, every chunk is computed when asked for, on all numba threads. The
-    first chunk always is: only then does numba know its threading layer.
+    for, in that order. With one lane or a single chunk, every chunk is computed when asked
+    for, in the calling thread on all numba threads (a lane would give a single chunk one
+    thread).
     """
 
     def __init__(self, surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
@@ -489,21 +479,26 @@ class _Lanes:
 
     def delta(self, start: int, nd: int) -> dict[str, Any]:
         """Return :func:`_chunk_delta` of directions start .. start + nd - 1."""
+        if self._pool is None and self._lanes > 1:
+            self._start()
         fut = self._queued.pop(start, None)
-        if fut is not None:
-            self._fill()
-            return fut.result()
-        out = _chunk_delta(*self._args, start, nd, self._per, self._cosine)
-        if self._pool is None and self._lanes > 1 and _concurrent_launches():
-            for a, _ in self._todo:  # the chunks up to this one are done
-                if a == start:
-                    break
-            from concurrent.futures import ThreadPoolExecutor
-
-            self._pool = ThreadPoolExecutor(self._lanes, thread_name_prefix="scatmodes-lane",
-                                            initializer=_one_thread)
+        if fut is None:
+            return _chunk_delta(*self._args, start, nd, self._per, self._cosine)
         self._fill()
-        return out
+        return fut.result()
+
+    def _start(self) -> None:
+        # at the first chunk: lanes only if there are at least two chunks to share out
+        ahead = list(itertools.islice(self._todo, 2))
+        self._todo = itertools.chain(ahead, self._todo)
+        if len(ahead) < 2:
+            self._lanes = 1
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._pool = ThreadPoolExecutor(self._lanes, thread_name_prefix="scatmodes-lane",
+                                        initializer=_one_thread)
+        self._fill()
 
     def _fill(self) -> None:
         while self._pool is not None and len(self._queued) < 2 * self._lanes:
@@ -523,9 +518,9 @@ class _Lanes:
             self._pool = None
 
 
-#: a worker process traces one task at a time: numba's workqueue threading layer aborts the
-#: process when two threads launch parallel kernels at once, and the task's own lanes
-#: (:class:`_Lanes`) already share the cores
+#: a worker process traces one task at a time: the task's own lanes (:class:`_Lanes`)
+#: already take the worker's share of the host's cores, and a second task at once would
+#: only compete for them while holding another set of chunk arrays in memory
 _WORKER_LOCK = threading.Lock()
 
 
@@ -542,8 +537,8 @@ def _remote_chunks(surface: Heightfield | Scene, basis: Basis, seed: np.uint64,
     """Run :func:`_chunk_delta` on a Dask worker for each (start, directions) in ``chunks``.
 
     Returns the worker's address and the chunks' results, in order. ``processes`` maps host
-    to the number of worker processes on it: each chunk's numba threads get that share of
-    the host's cores (the result does not depend on it).
+    to the number of worker processes on it: the task's lanes (:class:`_Lanes`, one chunk
+    each) get that share of the host's cores (the result does not depend on it).
     """
     import numba
     from distributed import get_worker
@@ -734,9 +729,10 @@ def _chunk_delta(surface: Heightfield | Scene, basis: Basis, seed: np.uint64, st
     vdir, w, nb, absorbed, lost = out
     bu = basis.eval(u, out=_SCRATCH.get("bu", (nd, k)))  # once per direction (Westin eq 25)
     c = np.full(nd, np.pi) if cosine else 2.0 * np.pi * u[:, 2]
-    bv = basis.eval(vdir, out=_SCRATCH.get("bv", (n, k)))
+    sums = _exit_sums(basis, vdir, w, per, _SCRATCH.get("sums", (nd, k)))
     m = np.empty((k, k))
-    _accumulate_kernel(bu, c, bv, w, per, _SCRATCH.get("sums", (nd, k)), m)
+    run_parallel(_outer_kernel, (k + 3) // 4, bu, c, sums, m,
+                 grain=max(1, _ACCUMULATE_WORK // max(1, 4 * nd * k)))
     return {"m": m, "rays": n, "reflected": float(w.sum()),
             "absorbed": float(absorbed.sum()), "lost": float(lost.sum()),
             "bounces": np.bincount(np.minimum(nb, BOUNCE_BINS), weights=w,
@@ -803,21 +799,43 @@ def _fold(acc: dict[str, Any], delta: dict[str, Any]) -> None:
     acc["bounces"] += delta["bounces"]
 
 
-@pjit
-def _accumulate_kernel(bu, c, bv, w, per, sums, m):
-    # bu (D, K) b(U) per direction; c (D,) estimator constant; bv (D * per, K) b(V) per ray;
-    # w (D * per,) exit weights; sums (D, K) work array; m (K, K) out: sum_d c_d b(U_d) S_d^T
-    # with the exit sums S_d = sum_p w_dp b(V_dp) (Westin eq 25: one outer product per
-    # direction, not per ray).
-    # No BLAS: its spinning threads fight numba's for the cores, and its summation order
-    # depends on the machine (a cluster of mixed CPUs would not give the same bits). Here
-    # every m[j, k] adds the directions' terms one by one in increasing d, whatever the
-    # thread count or CPU. A task holds four rows of m in a local block and takes four
-    # directions per pass over k, so each pass loads and stores the block once for sixteen
-    # multiply-adds: about 2x faster than one row and one direction per pass (same bits), and
-    # within 2.4x of OpenBLAS's dgemm on one thread at K = 91.
-    nd, kk = bu.shape
-    for d in prange(nd):
+#: multiply-adds per part of run_parallel in the accumulation kernels (about 100 us)
+_ACCUMULATE_WORK = 1 << 17
+
+
+#: bytes of exit-direction basis values per thread evaluated at once (they stay in its L2
+#: cache until the exit sums read them)
+_EXIT_BYTES = 1 << 20
+
+
+def _exit_sums(basis: Basis, vdir: np.ndarray, w: np.ndarray, per: int,
+               sums: np.ndarray) -> np.ndarray:
+    """Set ``sums`` (D, K) to S_d = sum_p w_dp b(V_dp) (Westin eq 25) and return it.
+
+    ``vdir`` (D * per, 3) exit directions, ``w`` (D * per,) exit weights. The basis is
+    evaluated a block of directions at a time, into a block that fits the threads' L2
+    caches, and summed at once: evaluating all of a chunk first wrote its b(V) (24 MB for
+    32768 rays at K = 91) to memory and read it back.
+
+    Each S_d adds its rays one by one in increasing p, whatever the block or thread count.
+    """
+    nd, kk = sums.shape
+    step = max(1, _EXIT_BYTES * _threads() // (8 * kk * per))  # directions
+    bv = _SCRATCH.get("bv", (min(nd, step) * per, kk))
+    for d0 in range(0, nd, step):
+        d1 = min(nd, d0 + step)
+        rows = slice(d0 * per, d1 * per)
+        basis.eval(vdir[rows], out=bv[:(d1 - d0) * per])
+        run_parallel(_exit_sums_kernel, d1 - d0, per, bv, w[rows], sums[d0:d1],
+                     grain=max(1, _ACCUMULATE_WORK // max(1, per * kk)))
+    return sums
+
+
+@loopjit
+def _exit_sums_kernel(first, stop, per, bv, w, sums):
+    # directions first .. stop - 1 (run_parallel): sums[d] = sum_p w_dp b(V_dp)
+    kk = sums.shape[1]
+    for d in range(first, stop):
         for k in range(kk):
             sums[d, k] = 0.0
         for p in range(d * per, (d + 1) * per):
@@ -825,7 +843,17 @@ def _accumulate_kernel(bu, c, bv, w, per, sums, m):
             if f != 0.0:
                 for k in range(kk):
                     sums[d, k] += f * bv[p, k]
-    for b in prange((kk + 3) // 4):
+
+
+@loopjit
+def _outer_kernel(first, stop, bu, c, sums, m):
+    # blocks first .. stop - 1 (run_parallel) of four rows of m: m[j] = sum_d c_d bu[d, j] sums[d]
+    # A block holds four rows of m in a local array and takes four directions per pass over
+    # k, so each pass loads and stores the block once for sixteen multiply-adds: about 2x
+    # faster than one row and one direction per pass (same bits), and within 2.4x of
+    # OpenBLAS's dgemm on one thread at K = 91.
+    nd, kk = bu.shape
+    for b in range(first, stop):
         j0 = 4 * b
         nj = min(4, kk - j0)
         r = np.zeros((4, kk))

@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis.jit import pjit, prange
+from basis.jit import loopjit, run_parallel
 
 from ._paths import (
     _HIT,
@@ -442,9 +442,10 @@ class Scene:
         _, _, mats = self._packed()
         mats = np.ascontiguousarray(mats[bvh.source])  # per stored primitive
         lx, ly = self.period
-        _scene_kernel(np.ascontiguousarray(dirs), per, seed, np.uint64(start), lx, ly,
-                      float(bvh.lo[0, 2]), float(bvh.hi[0, 2]), bvh.lo, bvh.hi, bvh.link,
-                      bvh.ptype, bvh.pdata, mats, ROULETTE, max_bounces, max_steps, *out)
+        run_parallel(_scene_kernel, dirs.shape[0] * per, np.ascontiguousarray(dirs), per, seed,
+                     np.uint64(start), lx, ly, float(bvh.lo[0, 2]), float(bvh.hi[0, 2]), bvh.lo,
+                     bvh.hi, bvh.link, bvh.ptype, bvh.pdata, mats, ROULETTE, max_bounces,
+                     max_steps, *out, grain=_GRAIN)
 
 
 def brushed_metal(radius: float, spacing: float, *, height: float = 0.0,
@@ -611,15 +612,21 @@ def _heightfield_triangles(surface: Heightfield) -> NDArray[np.float64]:
     return np.concatenate([a, b])
 
 
-@pjit
-def _scene_kernel(dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptype, pdata, mats,
-                  rr, max_bounces, max_steps, out_dir, out_w, out_b, out_abs, out_lost):
+#: rays per part of run_parallel: a path through the BVH costs microseconds
+_GRAIN = 64
+
+
+@loopjit
+def _scene_kernel(first, stop, dirs, per, seed, start, lx, ly, zmin, zmax, lo, hi, link, ptype,
+                  pdata, mats, rr, max_bounces, max_steps, out_dir, out_w, out_b, out_abs,
+                  out_lost):
+    # Rays first .. stop - 1 (run_parallel).
     # As trace._trace_kernel with the periodic BVH walk; mats (P, 4) per stored primitive:
     # (material code, ior, k, albedo), k = absorption coefficient for DIELECTRIC.
     # dirs (B, 3); outputs (B * per, 3), (B * per,) x 4.
     eps = 1e-7 * min(lx, ly)
     zs = zmax + 1e-6 * (zmax - zmin + lx)
-    for r in prange(dirs.shape[0] * per):
+    for r in range(first, stop):
         ox, oy, oz, dx, dy, dz, s = _launch(dirs, r // per, zs, lx, ly,
                                             _stream(seed, start + np.uint64(r), _TAG_RAY))
         w = 1.0

@@ -17,7 +17,7 @@ from typing import NamedTuple
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from basis.jit import pjit, prange
+from basis.jit import loopjit, run_parallel
 from basis.validation import as_directions
 
 from ._checks import _positive_int, _seed
@@ -129,15 +129,25 @@ def _run(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64, start: 
         return
     h = surface.heights
     sx, sy = surface.spacing
-    _trace_kernel(np.ascontiguousarray(dirs), per, seed, np.uint64(start), h,
-                  surface._pyramid, surface._offsets, surface._levels, sx, sy,
-                  float(h.min()), float(h.max()), surface.material.code,
-                  surface.material._params(), ROULETTE, max_bounces, max_steps, *out)
+    start64 = np.uint64(start)
+    # contiguous parts of this order trace rays aiming at neighbouring points
+    order = _coherent_order(seed, start64, dirs.shape[0] * per, h.shape[1], h.shape[0])
+    run_parallel(_trace_kernel, order.shape[0], order, np.ascontiguousarray(dirs), per, seed,
+                 start64, h, surface._pyramid, surface._offsets, surface._levels, sx, sy,
+                 float(h.min()), float(h.max()), surface.material.code,
+                 surface.material._params(), ROULETTE, max_bounces, max_steps, *out,
+                 grain=_GRAIN)
 
 
-@pjit
-def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax, code, params,
-                  rr, max_bounces, max_steps, out_dir, out_w, out_b, out_abs, out_lost):
+#: rays per part of run_parallel: a ray costs about a microsecond (more on steep surfaces)
+_GRAIN = 128
+
+
+@loopjit
+def _trace_kernel(first, stop, order, dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin,
+                  hmax, code, params, rr, max_bounces, max_steps, out_dir, out_w, out_b,
+                  out_abs, out_lost):
+    # Rays order[first] .. order[stop - 1] (run_parallel; order: _coherent_order of all rays).
     # dirs (B, 3) incident unit vectors (towards the light, z > 0); per rays each;
     # h (ny, nx) heights; pyr/offs the flat max pyramid; params (ior, k, albedo);
     # outputs (B * per, 3), (B * per,) x 4. Ray r uses stream (seed, start + r).
@@ -149,8 +159,7 @@ def _trace_kernel(dirs, per, seed, start, h, pyr, offs, top, sx, sy, hmin, hmax,
     ior = params[0]
     kext = params[1]
     alb = params[2]
-    order = _coherent_order(seed, start, dirs.shape[0] * per, nx, ny)
-    for i in prange(order.shape[0]):
+    for i in range(first, stop):
         r = order[i]
         ox, oy, oz, dx, dy, dz, s = _launch(dirs, r // per, zs, lx, ly,
                                             _stream(seed, start + np.uint64(r), _TAG_RAY))

@@ -4,7 +4,7 @@ A :class:`~project.microgeometry.MicroBRDF` is a Python object evaluated in nump
 cannot be called from inside the numba path loops of ``trace.py`` and ``scene.py``. Instead
 all live rays are advanced one facet interaction at a time:
 
-1. numba (a step kernel, parallel over rays): intersect every live ray with the specimen,
+1. numba (a step kernel, on threads over rays): intersect every live ray with the specimen,
    record escapes, cut-offs and hits, and move the origins of hit rays to the hit point
    (offset along the facet normal, wrapped into the period). The height field is walked
    with the max pyramid (``_step_kernel``, as ``trace._trace_kernel``), a
@@ -42,7 +42,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 from numpy.typing import NDArray
 
-from basis.jit import njit, pjit, prange
+from basis.jit import loopjit, njit, run_parallel
 
 from ._paths import (
     _ESCAPED,
@@ -77,8 +77,9 @@ def run_wavefront(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64
 
     def step(act, o, d, w, nb, lost, status, g, mid, front, prim):
         # one material (mid = 0), every facet seen from above (front = True): untouched
-        _step_kernel(act, o, d, w, nb, lost, h, surface._pyramid, surface._offsets,
-                     surface._levels, sx, sy, hmin, hmax, max_bounces, max_steps, status, g)
+        run_parallel(_step_kernel, act.shape[0], act, o, d, w, nb, lost, h, surface._pyramid,
+                     surface._offsets, surface._levels, sx, sy, hmin, hmax, max_bounces,
+                     max_steps, status, g, grain=_GRAIN)
 
     _bounces(step, [surface.material], hmax + 1e-6 * (hmax - hmin + sx), h.shape[1] * sx,
              h.shape[0] * sy, dirs, per, seed, start, out)
@@ -101,9 +102,9 @@ def run_scene_wavefront(bvh: BVH, period: NDArray, materials: Sequence[Material]
     slot = np.ascontiguousarray(slot, dtype=np.int64)
 
     def step(act, o, d, w, nb, lost, status, g, mid, front, prim):
-        _scene_step_kernel(act, o, d, w, nb, lost, lx, ly, zmin, zmax, bvh.lo, bvh.hi,
-                           bvh.link, bvh.ptype, bvh.pdata, slot, max_bounces, max_steps,
-                           status, g, mid, front, prim)
+        run_parallel(_scene_step_kernel, act.shape[0], act, o, d, w, nb, lost, lx, ly, zmin,
+                     zmax, bvh.lo, bvh.hi, bvh.link, bvh.ptype, bvh.pdata, slot, max_bounces,
+                     max_steps, status, g, mid, front, prim, grain=_GRAIN)
 
     # the start height of scene._scene_kernel
     _bounces(step, materials, zmax + 1e-6 * (zmax - zmin + lx), lx, ly, dirs, per, seed,
@@ -153,7 +154,8 @@ def _bounces(step: Callable, materials: Sequence[Material], zs: float, lx: float
         if plain.any():
             rows = hit[plain[mid[hit]]]
             if rows.size:
-                _facet_kernel(rows, d, g, front, mid, table, w, absorbed, s, ROULETTE)
+                run_parallel(_facet_kernel, rows.shape[0], rows, d, g, front, mid, table, w,
+                             absorbed, s, ROULETTE, grain=_FACET_GRAIN)
         for j in micro:
             rows = hit if len(materials) == 1 else hit[mid[hit] == j]
             if rows.size:
@@ -272,9 +274,16 @@ def _record(r, code, t, gx, gy, gz, eps, lx, ly, o, d, w, nb, lost, max_bounces,
     return True
 
 
-@pjit
-def _step_kernel(act, o, d, w, nb, lost, h, pyr, offs, top, sx, sy, hmin, hmax, max_bounces,
-                 max_steps, status, g):
+#: live rays per part of run_parallel in the step kernels: a step costs about a microsecond
+_GRAIN = 64
+#: rays per part in _facet_kernel: a facet event costs a tenth of a step
+_FACET_GRAIN = 1024
+
+
+@loopjit
+def _step_kernel(first, stop, act, o, d, w, nb, lost, h, pyr, offs, top, sx, sy, hmin, hmax,
+                 max_bounces, max_steps, status, g):
+    # Rows act[first] .. act[stop - 1] (run_parallel).
     # act (A,) rows of live rays; o, d (n, 3) origins and unit directions; w, lost (n,)
     # weights; nb (n,) bounces; status (n,) out per row in act; g (n, 3) out: facet normal
     # of each hit. Hit rays get nb += 1 and their origin moved to the (offset) hit point;
@@ -283,21 +292,21 @@ def _step_kernel(act, o, d, w, nb, lost, h, pyr, offs, top, sx, sy, hmin, hmax, 
     lx = nx * sx
     ly = ny * sy
     eps = 1e-7 * min(sx, sy)
-    for a in prange(act.shape[0]):
+    for a in range(first, stop):
         r = act[a]
         code, t, gx, gy, gz = _intersect(o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1], d[r, 2],
                                          h, pyr, offs, top, sx, sy, hmin, hmax, max_steps)
         _record(r, code, t, gx, gy, gz, eps, lx, ly, o, d, w, nb, lost, max_bounces, status, g)
 
 
-@pjit
-def _scene_step_kernel(act, o, d, w, nb, lost, lx, ly, zmin, zmax, lo, hi, link, ptype, pdata,
-                       slot, max_bounces, max_steps, status, g, mid, front, prim):
+@loopjit
+def _scene_step_kernel(first, stop, act, o, d, w, nb, lost, lx, ly, zmin, zmax, lo, hi, link,
+                       ptype, pdata, slot, max_bounces, max_steps, status, g, mid, front, prim):
     # As _step_kernel with the periodic BVH walk (bvh._periodic_hit); slot (P,) material
     # index of each stored primitive; mid (n,) out: material index of each hit, front (n,)
     # out: the ray arrived on the primitive's outer side, prim (n,) out: stored primitive.
     eps = 1e-7 * min(lx, ly)  # the offset of scene._scene_kernel
-    for a in prange(act.shape[0]):
+    for a in range(first, stop):
         r = act[a]
         code, t, gx, gy, gz, k, fr = _periodic_hit(o[r, 0], o[r, 1], o[r, 2], d[r, 0], d[r, 1],
                                                    d[r, 2], lx, ly, zmin, zmax, max_steps, lo,
@@ -309,12 +318,12 @@ def _scene_step_kernel(act, o, d, w, nb, lost, lx, ly, zmin, zmax, lo, hi, link,
             prim[r] = k
 
 
-@pjit
-def _facet_kernel(rows, d, g, front, mid, table, w, absorbed, s, rr):
-    # rows (A,) hits on Mirror / Diffuse facets; table (K, 4) (code, ior, k, albedo) per
-    # material; d, g (n, 3); front, mid, w, absorbed, s (n,): the path tracers' facet event
-    # (its draws and roulette) applied in place
-    for a in prange(rows.shape[0]):
+@loopjit
+def _facet_kernel(first, stop, rows, d, g, front, mid, table, w, absorbed, s, rr):
+    # rows[first] .. rows[stop - 1] (run_parallel) of rows (A,): hits on Mirror / Diffuse
+    # facets; table (K, 4) (code, ior, k, albedo) per material; d, g (n, 3); front, mid, w,
+    # absorbed, s (n,): the path tracers' facet event (its draws and roulette) in place
+    for a in range(first, stop):
         r = rows[a]
         m = table[mid[r]]
         dx, dy, dz, wr, ab, st = _scatter(int(m[0]), m[1], m[2], m[3], d[r, 0], d[r, 1],

@@ -50,6 +50,7 @@ sys.path.insert(0, str(ROOT))
 import basis  # noqa: E402
 import compress  # noqa: E402
 import project  # noqa: E402
+from basis.jit import run_parallel  # noqa: E402
 from project.measured.merl import MERLBRDF, _merl_lookup_kernel, merl_grid, read_merl  # noqa: E402
 from tests.benchmarks.bench_eval import pairs  # noqa: E402 - the same test pairs
 
@@ -92,7 +93,8 @@ def main(argv: list[str] | None = None) -> int:
     runs: dict[str, tuple] = {}
     out3 = np.empty((a.pairs, 3))
     runs["MERL lookup (trilinear)"] = (
-        lambda: _merl_lookup_kernel(wi, wo, brdf._lut, True, out3), a.pairs, None)
+        lambda: run_parallel(_merl_lookup_kernel, a.pairs, wi, wo, brdf._lut, True, out3,
+                             grain=128), a.pairs, None)
     runs["MERLBRDF.eval"] = (lambda: brdf.eval(wi, wo), a.pairs, None)
     ts = compress.reference_samples(brdf, nodes=(24, 48))
     top = max(a.orders)

@@ -51,6 +51,7 @@ sys.path.insert(0, str(ROOT))
 
 import basis  # noqa: E402
 import project  # noqa: E402
+from basis.jit import run_parallel  # noqa: E402
 from project.measured.merl import MERLBRDF, _merl_lookup_kernel, merl_grid, read_merl  # noqa: E402
 
 
@@ -105,7 +106,8 @@ def evaluation(args: argparse.Namespace) -> None:
     wi, wo = pairs(args.pairs, 7)
     out = np.empty((args.pairs, 3))
     fns = {"MERLBRDF.eval (peer)": lambda: brdf.eval(wi, wo),
-           "MERL lookup kernel": lambda: _merl_lookup_kernel(wi, wo, brdf._lut, True, out)}
+           "MERL lookup kernel": lambda: run_parallel(_merl_lookup_kernel, args.pairs, wi, wo,
+                                                      brdf._lut, True, out, grain=128)}
     rng = np.random.default_rng(11)
     for b in (basis.HemiZernike(args.order), basis.HemiHarmonics(args.order)):
         blocks = [rng.normal(size=(3, i.size, i.size)) for i in b.azimuthal_blocks().cos]

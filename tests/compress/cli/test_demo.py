@@ -75,6 +75,22 @@ def test_compile_ahead_failure_means_compile_in_place():
         assert ahead._proc is None and ahead.wait("study") is False
 
 
+def test_lazy_compile_ahead_starts_only_on_a_cache_miss():
+    import numba
+
+    from compress.cli.demo import CompileAhead
+
+    # nothing compiles (every kernel cached, or none called): no second process
+    with CompileAhead({"simulation": (16,)}, lazy=True) as ahead:
+        assert not ahead.started
+        assert ahead.wait("simulation") is False
+    # a compilation (an uncached function, so numba's compile event fires) starts it
+    with CompileAhead({"simulation": (16,)}, lazy=True) as ahead:
+        numba.njit(lambda x: x + 1)(1)
+        assert ahead.started
+        assert ahead.wait("simulation") is True
+
+
 def _deterministic(out: str) -> list[str]:
     """The demo's lines without wall times: tables without their timing column, sim facts."""
     keep = []
