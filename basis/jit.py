@@ -68,6 +68,11 @@ def run_parallel(kernel, tasks: int, *args, grain: int = 1) -> None:
                 if k is None:
                     return
                 kernel(edges[k], edges[k + 1], *args)
+        except BaseException:  # an error or an interrupt: the others take no new part
+            with lock:
+                for _ in todo:
+                    pass
+            raise
         finally:
             _LOCAL.inside = outer
 
@@ -81,22 +86,26 @@ def run_parallel(kernel, tasks: int, *args, grain: int = 1) -> None:
 
 
 _LOCAL = threading.local()
-_POOL: list = []  # the pool, created at first use, dropped in a forked child
-
-
-_POOL_LOCK = threading.Lock()
+_POOL: list = []  # the pool, created at first use
+_POOL_LOCK = [threading.Lock()]
 
 
 def _pool() -> ThreadPoolExecutor:
-    with _POOL_LOCK:
+    with _POOL_LOCK[0]:
         if not _POOL:
             _POOL.append(ThreadPoolExecutor(max(1, numba.config.NUMBA_NUM_THREADS - 1),
                                             thread_name_prefix="scatmodes-kernel"))
         return _POOL[0]
 
 
+def _forget_pool() -> None:
+    # a forked child has none of the parent's threads, and the lock may have been held
+    _POOL.clear()
+    _POOL_LOCK[0] = threading.Lock()
+
+
 if hasattr(os, "register_at_fork"):
-    os.register_at_fork(after_in_child=_POOL.clear)
+    os.register_at_fork(after_in_child=_forget_pool)
 
 
 def writable(a: np.ndarray) -> np.ndarray:

@@ -284,7 +284,7 @@ def _legendre_tables(lmax: int) -> tuple[NDArray, NDArray, NDArray]:
     return a, b, d
 
 
-@njit(inline="always")
+@njit
 def _pos(l, m, parity):
     if parity == 2:
         return l * l + l + m
@@ -598,7 +598,7 @@ def _sh_eval_kernel(first, stop, dirs, lmax, parity, norm, a, b, d, off, ra, rb,
             _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out)
 
 
-@njit(inline="always")
+@njit
 def _store(row, l, m, p, fc, fs, parity):
     if parity == 2 or (l + m) % 2 == parity:
         if m == 0:

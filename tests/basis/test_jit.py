@@ -1,4 +1,5 @@
-"""The eight-lane vector intrinsics of basis.jit against numpy's scalar IEEE arithmetic."""
+"""basis.jit: the eight-lane vector intrinsics against numpy's scalar IEEE arithmetic, and
+run_parallel's split of a task range."""
 
 import numba
 import numpy as np
@@ -121,3 +122,77 @@ def test_more_lane_operations_give_the_scalar_bits(rng):
         np.testing.assert_array_equal(disk[1], np.sqrt(rho2))
         np.testing.assert_array_equal(disk[2], np.where(s > 0, xx / s, 1.0))
         np.testing.assert_array_equal(disk[3], np.where(s > 0, yy / s, 0.0))
+
+
+# -- run_parallel -------------------------------------------------------------------------------
+@numba.njit(cache=False, nogil=True)
+def _mark(first, stop, hits):
+    for t in range(first, stop):
+        hits[t] += 1
+
+
+def _ranges(tasks, threads, grain=1):
+    """The calls run_parallel makes (first, stop) with ``threads`` numba threads."""
+    import threading
+
+    from basis.jit import run_parallel
+
+    calls, lock = [], threading.Lock()
+
+    def kernel(first, stop):
+        with lock:
+            calls.append((first, stop, threading.get_ident()))
+
+    old = numba.get_num_threads()
+    numba.set_num_threads(min(threads, numba.config.NUMBA_NUM_THREADS))
+    try:
+        run_parallel(kernel, tasks, grain=grain)
+    finally:
+        numba.set_num_threads(old)
+    return calls
+
+
+def test_run_parallel_covers_every_task_once():
+    from basis.jit import run_parallel
+
+    for tasks in (1, 2, 7, 100, 1001):
+        hits = np.zeros(tasks, np.int64)
+        run_parallel(_mark, tasks, hits)
+        assert (hits == 1).all()
+        spans = sorted((a, b) for a, b, _ in _ranges(tasks, 2))
+        assert spans[0][0] == 0 and spans[-1][1] == tasks
+        assert all(b0 == a1 for (_, b0), (a1, _) in zip(spans, spans[1:], strict=False))
+        assert all(a < b for a, b in spans)
+
+
+def test_run_parallel_grain_and_one_thread_run_in_the_caller():
+    import threading
+
+    me = threading.get_ident()
+    assert _ranges(1000, 1) == [(0, 1000, me)]  # one thread: one call, here
+    assert _ranges(15, 2, grain=8) == [(0, 15, me)]  # fewer than 2 * grain tasks
+    calls = _ranges(1000, 2, grain=100)
+    if numba.config.NUMBA_NUM_THREADS >= 2:
+        assert 2 <= len(calls) <= 8 and all(b - a >= 100 for a, b, _ in calls)
+
+
+def test_run_parallel_nested_call_runs_inline_and_errors_propagate():
+    import pytest
+
+    from basis.jit import run_parallel
+
+    inner = []
+
+    def outer(first, stop):
+        run_parallel(lambda a, b: inner.append((a, b)), 50)  # inside a part: no new parts
+
+    run_parallel(outer, 4)
+    assert sorted(inner) == [(0, 50)] * len(inner) and len(inner) >= 1
+
+    def bad(first, stop):
+        if first > 0:
+            raise ValueError("from a pool thread")
+
+    if numba.config.NUMBA_NUM_THREADS >= 2:
+        with pytest.raises(ValueError, match="pool thread"):
+            run_parallel(bad, 100)

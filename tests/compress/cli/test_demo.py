@@ -43,6 +43,32 @@ def test_resolution_and_markdown():
                                "| Z(2) | 1.50e-16 | 3.2 | - |"]
 
 
+def test_basis_table_rows_in_order_and_waits_before_zernike():
+    from compress.cli.demo import basis_table
+
+    calls = []
+
+    def wait(kind):  # records which rows exist when the table waits
+        calls.append((kind, len(seen)))
+
+    seen = []
+    orig = basis.HemiZernike.eval
+
+    def spy(self, *a, **k):
+        seen.append(self.order)
+        return orig(self, *a, **k)
+
+    basis.HemiZernike.eval = spy
+    try:
+        rows = basis_table(orders=(2, 4), points=50, wait=wait)
+    finally:
+        basis.HemiZernike.eval = orig
+    assert calls == [("zernike", 0)]  # once, before any Zernike evaluation
+    names = [r["basis"].split("(")[0] for r in rows[:6]]
+    assert names == ["SphericalHarmonics", "HemiHarmonics", "HemiZernike"] * 2
+    assert [r["order"] for r in rows[:6]] == [2, 2, 2, 4, 4, 4]
+
+
 # -- the model study's tolerance and the compilation in a second process -----------------
 def test_study_tol_changes_no_printed_digit():
     # reference: the same study at project's default tolerance for models, 1e-6; the demo
@@ -59,8 +85,9 @@ def test_study_tol_changes_no_printed_digit():
 def test_compile_ahead_reports_each_step():
     from compress.cli.demo import CompileAhead
 
-    with CompileAhead({"simulation": (16,)}) as ahead:
+    with CompileAhead({"zernike": (), "simulation": (16,)}) as ahead:
         assert ahead.wait("study") is False  # not asked for
+        assert ahead.wait("zernike") is True
         assert ahead.wait("simulation") is True
         assert ahead.wait("simulation") is False  # already waited for
 
