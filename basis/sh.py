@@ -19,7 +19,6 @@ from .jit import (
     lane_scaled,
     lane_transpose,
     lane_unit,
-    loopjit,
     njit,
     run_parallel,
     writable,
@@ -293,8 +292,8 @@ def _pos(l, m, parity):
     return (l * (l + 1)) // 2 + (m + l) // 2
 
 
-#: Directions per parallel task (scratch arrays are allocated once per task); even, and a
-#: multiple of LANES.
+#: Fewest directions per part of run_parallel (scratch arrays are allocated once per part);
+#: a multiple of LANES.
 _TASK = 32 * LANES
 #: Below this degree the full basis takes _sh_pairs (two directions at a time, rows written
 #: straight to the output), from it _sh_lanes (measured on two cores: pairs faster at
@@ -324,8 +323,14 @@ def _seed_floor(lmax: int, norm: float) -> float:
 def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, cols, out):
     """Evaluate into ``out``; the lane kernel and its per-direction fallback give the same bits."""
     off = triangular_offsets(lmax)
-    run_parallel(_sh_eval_kernel, (dirs.shape[0] + _TASK - 1) // _TASK, dirs, lmax, parity,
-                 norm, a, b, d, off, rows[0], rows[1], smin, cols, out)
+    blocks = (dirs.shape[0] + LANES - 1) // LANES
+    # each strategy its own kernel, so a program compiles only the ones its degrees use
+    if parity == 2 and lmax < _PAIR_LMAX:
+        run_parallel(_sh_pairs, blocks, dirs, lmax, parity, norm, a, b, d, off, smin, out,
+                     grain=_TASK // LANES)
+    else:
+        run_parallel(_sh_lanes, blocks, dirs, lmax, parity, norm, a, b, d, off, rows[0],
+                     rows[1], smin, cols, out, grain=_TASK // LANES)
 
 
 @njit(inline="always")
@@ -395,8 +400,9 @@ def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
 
 
 @njit
-def _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
-    # Directions lo..hi-1 in blocks of LANES that run the recurrence together, row l by row
+def _sh_lanes(first, stop, dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
+    # Blocks first .. stop - 1 of LANES directions (run_parallel), in which the directions
+    # lo..hi-1 run in blocks of LANES that run the recurrence together, row l by row
     # l, each step one <8 x double> operation (basis.jit): ra, rb are a, b by row
     # (_row_tables). Scratch is flat and lane-fastest (entry r of lane j at r * LANES + j);
     # buf holds the full basis in flat order for each lane. For the full basis every row's
@@ -407,6 +413,8 @@ def _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols
     # last partial block, take _sh_point; the others give its bits (same operations in the
     # same order; an m = 0 value is stored as p * 1.0, as _sh_point stores it). out must be
     # C-contiguous: the tiles address it by flat index.
+    lo = first * LANES
+    hi = min(dirs.shape[0], stop * LANES)
     sqrt2 = np.sqrt(2.0)
     p00 = norm / np.sqrt(4.0 * np.pi)
     nl = lmax + 1
@@ -487,12 +495,15 @@ def _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols
 
 
 @njit
-def _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out):
-    # Directions lo..hi-1, two per iteration, for parity 2 and lmax < _PAIR_LMAX: the
+def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
+    # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1, two
+    # per iteration, for parity 2 and lmax < _PAIR_LMAX: the
     # recurrence in l is a chain of dependent multiplications, and two independent chains
     # keep the FPU busy; each row (under 1.2 KB) is written straight to out.
     # Same operations in the same order as _sh_point, so the same bits; a direction with
     # 0 < sin(theta) < smin needs the carried exponent and takes _sh_point.
+    lo = first * LANES
+    hi = min(dirs.shape[0], stop * LANES)
     sqrt2 = np.sqrt(2.0)
     p00 = norm / np.sqrt(4.0 * np.pi)
     for i in range(lo, hi, 2):
@@ -577,25 +588,6 @@ def _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out):
                     row[k - 2 * m] = p * fs
                     rowb[k] = pb * fcb
                     rowb[k - 2 * m] = pb * fsb
-
-
-@loopjit
-def _sh_eval_kernel(first, stop, dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols,
-                    out):
-    # Tasks first .. stop - 1 of _TASK directions (run_parallel); dirs (n, 3) float64 ~unit
-    # vectors; a, b (T,) recurrence tables by column m, ra, rb the same by row l, d (lmax+1,)
-    # sectoral factors, off (lmax+1,) column starts; out (n, size) with size fixed by
-    # parity; cols (size,) the column of each function in the full basis. One kernel for
-    # both strategies, so a cold start compiles it once whatever the degrees used.
-    n = dirs.shape[0]
-    pairs = parity == 2 and lmax < _PAIR_LMAX
-    for task in range(first, stop):
-        lo = task * _TASK
-        hi = min(n, lo + _TASK)
-        if pairs:
-            _sh_pairs(dirs, lo, hi, lmax, parity, norm, a, b, d, off, smin, out)
-        else:
-            _sh_lanes(dirs, lo, hi, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out)
 
 
 @njit

@@ -21,7 +21,6 @@ from .jit import (
     lane_rotate,
     lane_tile,
     lane_turn,
-    loopjit,
     njit,
     run_parallel,
     writable,
@@ -100,9 +99,10 @@ class HemiZernike(Basis):
             self._eval_flat(dirs, res)
             out[...] = res
             return
-        run_parallel(_zernike_kernel, (dirs.shape[0] + _TASK - 1) // _TASK, writable(dirs),
-                     self._order, self._coef, self._start, self._norm,
-                     self._order < _PAIR_ORDER, out)
+        # each strategy its own kernel, so a program compiles only the ones its orders use
+        run_parallel(_zernike_pairs if self._order < _PAIR_ORDER else _zernike_lanes,
+                     (dirs.shape[0] + LANES - 1) // LANES, writable(dirs), self._order,
+                     self._coef, self._start, self._norm, out, grain=_TASK // LANES)
 
     def exact_rule(self) -> HemisphereRule:
         """Return a product rule exact for every product of two functions of this basis.
@@ -219,8 +219,8 @@ def _disk(dirs, i):
     return rho2, np.sqrt(rho2), c1, s1
 
 
-#: Directions per parallel task (scratch arrays are allocated and the column tables filled
-#: once per task); a multiple of LANES.
+#: Fewest directions per part of run_parallel (scratch arrays are allocated and the column
+#: tables filled once per part); a multiple of LANES.
 _TASK = 128 * LANES
 
 
@@ -274,8 +274,9 @@ def _zernike_point(dirs, i, order, coef, norm, row):
 
 
 @njit
-def _zernike_lanes(dirs, lo, hi, order, coef, start, norm, out):
-    # Directions lo..hi-1 in blocks of LANES that run the radial recurrences together, row n
+def _zernike_lanes(first, stop, dirs, order, coef, start, norm, out):
+    # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1 in
+    # blocks of LANES that run the radial recurrences together, row n
     # by row n (the output order), each step one <8 x double> operation (basis.jit).
     # Scratch is lane-fastest (entry r of lane j at r * LANES + j):
     #   ang: the angular factor of (n, l) at entry order + l for every signed l: sin(|l| phi)
@@ -293,6 +294,8 @@ def _zernike_lanes(dirs, lo, hi, order, coef, start, norm, out):
     # column). A last partial block takes _zernike_point; the blocks give
     # its bits (same operations in the same order). out must be C-contiguous: the tiles
     # address it by flat index.
+    lo = first * LANES
+    hi = min(dirs.shape[0], stop * LANES)
     nl = order + 1
     size = out.shape[1]
     flat = out.reshape(out.size)
@@ -369,13 +372,16 @@ def _zernike_lanes(dirs, lo, hi, order, coef, start, norm, out):
 
 
 @njit
-def _zernike_pairs(dirs, lo, hi, order, coef, start, norm, out):
-    # Directions lo..hi-1 for low orders, where a block of eight has too little work to
+def _zernike_pairs(first, stop, dirs, order, coef, start, norm, out):
+    # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1 for
+    # low orders, where a block of eight has too little work to
     # hide the latency of its lane operations: the geometry, cos(l phi), sin(l phi) and
     # rho^l run lane-wise (lane_disk, lane_rotate), then the radial recurrences of two
     # directions at a time in scalar code, l by l, each value written straight to its row
     # (two independent chains of dependent multiplications keep the FPU busy). Same
     # operations as _zernike_point, so the same bits; a last partial block takes it.
+    lo = first * LANES
+    hi = min(dirs.shape[0], stop * LANES)
     nl = order + 1
     rho2 = np.empty(LANES)
     rho = np.empty(LANES)
@@ -456,18 +462,3 @@ def _zernike_pairs(dirs, lo, hi, order, coef, start, norm, out):
                     if l > 0:
                         row[ks] = v * sl
                         rowb[ks] = vb * slb
-
-
-@loopjit
-def _zernike_kernel(first, stop, dirs, order, coef, start, norm, pairs, out):
-    # Tasks first .. stop - 1 of _TASK directions (run_parallel); dirs (p, 3) ~unit vectors
-    # with z >= 0 (up to rounding); coef (T, 3) from _radial_tables, start (order+1,) its
-    # column starts; norm (order+1,) = sqrt((n+1)/pi); out (p, (order+1)(order+2)/2)
-    # C-contiguous.
-    p = dirs.shape[0]
-    for task in range(first, stop):
-        lo = task * _TASK
-        if pairs:
-            _zernike_pairs(dirs, lo, min(p, lo + _TASK), order, coef, start, norm, out)
-        else:
-            _zernike_lanes(dirs, lo, min(p, lo + _TASK), order, coef, start, norm, out)

@@ -268,10 +268,10 @@ def _demo(args: argparse.Namespace) -> int:
     out = _output_dir(args.out)
     orders = _orders(args.orders)
     study_orders = _orders(args.study_orders, "--study-orders")
-    # on a first run (the first cache miss) a second process compiles the Zernike kernel and
-    # then the simulation's while this one compiles the harmonics' and the study's (about
-    # equal shares); later runs load them from numba's cache and start none
-    steps: dict[str, tuple[int, ...]] = {"zernike": ()}
+    # on a first run (the first cache miss) a second process compiles the Zernike kernel, the
+    # evaluator and the simulation's kernels while this one compiles the harmonics' and the
+    # quadrature's (about equal shares); later runs load them from numba's cache and start none
+    steps: dict[str, tuple[int, ...]] = {"zernike": (), "evaluator": ()}
     if args.rays > 0:
         steps["simulation"] = (args.resolution,)
     with demo.CompileAhead(steps if args.compile_ahead else {}, lazy=True) as ahead:
@@ -286,14 +286,16 @@ def _demo_steps(args: argparse.Namespace, demo: Any, out: Path, orders: tuple[in
     print("its Gram matrix on an exact product quadrature rule.\n")
 
     def before_zernike(kind: str) -> None:
-        if ahead.started:  # a first run: compile step 2's kernels while the Zernike one compiles
-            demo.compile_study()
+        if ahead.started:  # a first run: compile step 2's quadrature while Zernike compiles
+            demo.compile_projection()
         ahead.wait(kind)
 
     print(demo.to_markdown(demo.basis_table(orders=orders, points=args.points,
                                             wait=before_zernike)))
     png = demo.plot_modes(out / "modes.png", order=4)
     print(f"\nwrote {png} (the isotropic modes up to order 4 at theta_i = 45 deg)\n")
+
+    ahead.wait("evaluator")
 
     print("2. Two built-in models projected at orders "
           f"{', '.join(map(str, study_orders))} (f cos cos, quadrature to relative tolerance "

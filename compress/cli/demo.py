@@ -5,11 +5,11 @@ scattering modes (Figure 1 of Koenderink, van Doorn & Stavridi 1996), two built-
 projected at a few orders (resolution against error), and a small Monte Carlo simulation of
 a Gaussian surface against Beckmann + Smith (Figure 6 of Westin, Arvo & Torrance 1992).
 
-On a first run numba compiles the kernels (about 14 s of one core, then cached on disk):
-:class:`CompileAhead` compiles the Zernike kernel and then the simulation's in a second
-process while this one compiles the harmonics' and the model study's, so that the first run
-costs about half of the compilation more than a cached one. A cached run starts no second
-process.
+On a first run numba compiles the kernels (about 11 s of one core, then cached on disk):
+:class:`CompileAhead` compiles the Zernike kernel, the evaluator of coefficient matrices and
+the simulation's kernels in a second process while this one compiles the harmonics' and the
+quadrature's, so that the first run costs about half of the compilation more than a cached
+one. A cached run starts no second process.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ import basis
 from project.io import atomic_path
 
 __all__ = ["COMPILE_STEPS", "FIXED", "STUDY_TOL", "CompileAhead", "basis_table",
-           "compile_simulation", "compile_study", "compile_zernike", "demo_models", "model_study",
+           "compile_evaluator", "compile_projection", "compile_simulation", "compile_zernike",
+           "demo_models", "model_study",
            "modes_orthonormality_error", "orthonormality_error", "plot_inplane", "plot_modes",
            "resolution_deg", "resolution_rows", "simulate_demo", "to_markdown"]
 
@@ -183,16 +184,29 @@ def compile_zernike() -> None:
     basis.HemiZernike(8).eval(w)
 
 
-def compile_study() -> None:
-    """Compile the kernels of the model study: a Phong study at order 2 in hemispherical harmonics.
+def compile_projection() -> None:
+    """Compile the quadrature kernels of the model study (Phong in hemispherical harmonics).
 
-    The same calls as :func:`model_study` (quadrature projection, the fused evaluator of
-    the errors, which serves every kind), so the same kernels with the same argument types;
-    with the harmonics, whose kernel step 1 compiles first, it needs no Zernike kernel.
+    The same call as :func:`model_study` makes (so the same kernels with the same argument
+    types); with the harmonics, whose kernel step 1 compiles first, it needs no Zernike
+    kernel. The errors' evaluator is :func:`compile_evaluator`.
     """
+    from project import project
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        model_study(demo_models()["phong"], (2,), kinds=("harmonics",))
+        project(demo_models()["phong"], basis.HemiHarmonics(2), tol=STUDY_TOL)
+
+
+def compile_evaluator() -> None:
+    """Compile the fused evaluator of isotropic coefficient matrices (the study's errors).
+
+    One kernel serves every basis kind.
+    """
+    b = basis.HemiZernike(2)
+    w = np.array([[0.6, 0.0, 0.8]])
+    blocks = [np.eye(i.size)[None] for i in b.azimuthal_blocks().cos]
+    basis.CoefficientMatrix.from_blocks(b, blocks, "f_cos").eval(w, w)
 
 
 def compile_simulation(resolution: int = 64, order: int = 8) -> None:
@@ -204,8 +218,8 @@ def compile_simulation(resolution: int = 64, order: int = 8) -> None:
 
 
 #: What :class:`CompileAhead` can compile: step name -> function of integer arguments.
-COMPILE_STEPS = {"zernike": compile_zernike, "study": compile_study,
-                 "simulation": compile_simulation}
+COMPILE_STEPS = {"zernike": compile_zernike, "evaluator": compile_evaluator,
+                 "projection": compile_projection, "simulation": compile_simulation}
 
 
 def orthonormality_error(b: basis.Basis) -> float:
