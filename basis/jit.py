@@ -28,7 +28,9 @@ njit = partial(numba.njit, cache=True, fastmath=False, nogil=True)
 #: A loop kernel that :func:`run_parallel` runs over a task range: :data:`njit` with numpy's
 #: error model, under which x / 0 gives inf or nan (integers: 0) instead of raising
 #: ZeroDivisionError, so that no division waits for a test of its divisor. Numba compiles
-#: the bodies of its parallel loops the same way.
+#: the bodies of its parallel loops the same way, and gives them an unsigned loop index, which
+#: spares every ``a[p]`` numba's test for a negative index: loops that index many arrays
+#: iterate ``range(np.uint64(first), np.uint64(stop))`` (measured 30 % faster on one).
 loopjit = partial(numba.njit, cache=True, fastmath=False, nogil=True, error_model="numpy")
 
 

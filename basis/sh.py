@@ -401,9 +401,9 @@ def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
 
 @njit
 def _sh_lanes(first, stop, dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
-    # Blocks first .. stop - 1 of LANES directions (run_parallel), in which the directions
-    # lo..hi-1 run in blocks of LANES that run the recurrence together, row l by row
-    # l, each step one <8 x double> operation (basis.jit): ra, rb are a, b by row
+    # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1, the
+    # LANES of a block running the recurrence together, row l by row l, each step one
+    # <8 x double> operation (basis.jit): ra, rb are a, b by row
     # (_row_tables). Scratch is flat and lane-fastest (entry r of lane j at r * LANES + j);
     # buf holds the full basis in flat order for each lane. For the full basis every row's
     # finished columns go out in 8 x 8 transposed tiles while they are still in L1, so the

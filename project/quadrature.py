@@ -1094,7 +1094,7 @@ def _azimuth_sums_kernel(first, stop, q, scale, cosr, raw, sums, sq):  # pragma:
     # Pairs first .. stop - 1 (run_parallel); arguments as _azimuth_sums.
     _, nj, nc = q.shape
     nm = cosr.shape[1]
-    # unsigned p: a[p] then skips numba's negative-index wraparound (30 % faster)
+    # an unsigned index: no negative-index test on a[p] (basis.jit.loopjit)
     for p in range(np.uint64(first), np.uint64(stop)):
         acc = np.zeros(nm)
         for c in range(nc):
@@ -1115,8 +1115,7 @@ def _iso_directions_kernel(first, stop, sti, zi, sto, zo, cd, sd, wi,
                            wo):  # pragma: no cover - compiled
     # Pairs first .. stop - 1 (run_parallel). Pair p, azimuth j -> row p * nj + j:
     # w_i = (sin theta_i, 0, z_i) at azimuth 0 and w_o at azimuth -dphi_j
-    # unsigned p and j (k = p * nj + j as well): indexing then skips numba's negative-index
-    # wraparound
+    # unsigned p and j (k = p * nj + j as well): no negative-index tests (basis.jit.loopjit)
     nj = np.uint64(cd.size)
     for p in range(np.uint64(first), np.uint64(stop)):
         # read once: numba cannot tell that the stores to wi, wo miss these arrays

@@ -322,7 +322,7 @@ def _tabulated_kernel(first, stop, wi, wo, t, pd, period, divide,
     # and negates wi - wo exactly (phi_d + pi).
     nh, nd, m, nc = t.shape[0], t.shape[1], t.shape[2], t.shape[3]
     half = period < 4.0
-    # unsigned p: a[p] then skips numba's negative-index wraparound (30 % faster)
+    # an unsigned index: no negative-index test on a[p] (basis.jit.loopjit)
     for p in range(np.uint64(first), np.uint64(stop)):
         theta_h, theta_d, phi_d, iz, oz = half_difference(wi, wo, p, half)
         if phi_d < 0.0:

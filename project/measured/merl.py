@@ -352,7 +352,7 @@ def _merl_lookup_kernel(first, stop, wi, wo, lut, trilinear, out):  # pragma: no
     # lut: (90, 90, 180, c) filled table; out: (n, c). Rusinkiewicz coordinates from
     # h = wi + wo and d = wi - wo, both symmetric (d antisymmetric) under wi <-> wo, so the
     # folded phi_d and the result are exactly reciprocal.
-    # unsigned p: a[p] then skips numba's negative-index wraparound (30 % faster)
+    # an unsigned index: no negative-index test on a[p] (basis.jit.loopjit)
     for p in range(np.uint64(first), np.uint64(stop)):
         theta_h, theta_d, phi_d, _, _ = half_difference(wi, wo, p, True)
         _merl_value(lut, theta_h, theta_d, phi_d, trilinear, out[p])
@@ -369,7 +369,7 @@ def _merl_isotropic_kernel(first, stop, sti, zi, sto, zo, cd, sd, lut, trilinear
     # (half_difference) operation for operation, w_i normalised once per pair: the values are
     # the bits of eval at those directions.
     nj, nm, nc = cd.size, cosr.shape[1], lut.shape[3]
-    # unsigned p: a[p] then skips numba's negative-index wraparound (30 % faster)
+    # an unsigned index: no negative-index test on a[p] (basis.jit.loopjit)
     for p in range(np.uint64(first), np.uint64(stop)):
         acc = np.zeros((nc, nm))
         s2 = np.zeros(nc)

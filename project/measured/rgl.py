@@ -634,7 +634,7 @@ def _rgl_eval_kernel(first, stop, wi, wo, theta_nodes, phi_nodes, vdata, vcond, 
     ny, nx = vdata.shape[1], vdata.shape[2]
     m = slices.shape[1]
     nc = slices.shape[3]
-    # unsigned p: a[p] then skips numba's negative-index wraparound (30 % faster)
+    # an unsigned index: no negative-index test on a[p] (basis.jit.loopjit)
     for p in range(np.uint64(first), np.uint64(stop)):
         ix, iy, iz = wi[p, 0], wi[p, 1], wi[p, 2]
         ox, oy, oz = wo[p, 0], wo[p, 1], wo[p, 2]
