@@ -42,6 +42,7 @@ matte paints) are often smallest as a low-order expansion.
 from __future__ import annotations
 
 import math
+import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
@@ -59,6 +60,7 @@ from project.factored import reuse_samples
 from project.measurements import FOLDS
 from project.reciprocity import MIN_PAIRS
 from project.sampling import peak_resolving_pairs, value_errors
+from project.tucker import tucker_reals
 
 from .hybrid import Hybrid
 from .hybrid import hybrid as make_hybrid
@@ -73,6 +75,8 @@ FORMS = ("modal", "model", "hybrid")
 #: 1e-6 with the same l2 error (0.0442 on independent pairs).
 _FACTORED_TOL = 1e-4
 METRICS = ("l2", "log")
+#: Budgets (stored reals) of the Tucker candidates among the defaults.
+TUCKER_BUDGETS = (256, 512, 1024, 2048, 4096, 8192, 16384)
 #: The default candidates: parametric lobes, a ladder of factored tables, low orders of
 #: the Zernike basis (broad materials) and factored lobes with a Zernike residual.
 DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
@@ -99,6 +103,11 @@ DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
     {"form": "hybrid", "family": "factored", "rank": 4, "bins": (32, 24, 16),
      "tol": _FACTORED_TOL, "phi_turn": "full", "kind": "zernike", "order": 4,
      "reciprocal": False},
+    # Tucker tensors of piecewise-linear curves (project.tucker): the coupling of the angles
+    # that factored lobes lack, at budgets of 0.5 to 32 kB in float16; over half the turn
+    # (reciprocal) and the whole turn (not)
+    *({"form": "model", "family": "tucker", "budget": n, "phi_turn": turn}
+      for n in TUCKER_BUDGETS for turn in ("half", "full")),
     # the ladder's end: tables of q in the half/difference angles (project.tabulated), which
     # meet any tolerance down to their interpolation floor (second order in the cell size;
     # 10 % at 9 to 37 kB on three RGL-EPFL files), up to the resolution of the MERL grid
@@ -132,14 +141,17 @@ SAMPLE_CANDIDATES: tuple[dict[str, Any], ...] = (
     {"form": "hybrid", "family": "lambert+ggx", "kind": "zernike", "order": 4},
 )
 _FIT_KEYS = frozenset(project.fitting.FACTORED_OPTIONS) | frozenset(
-    project.fitting.TABULATED_OPTIONS) | {"restarts", "lobes", "n",
-                                                             "max_nfev", "fit_metric"}
+    project.fitting.TABULATED_OPTIONS) | frozenset(project.fitting.TUCKER_OPTIONS) | {
+        "restarts", "lobes", "n", "max_nfev", "fit_metric"}
 _KEYS = {"modal": {"kind", "order", "rank", "reciprocal"},
          "model": {"family"} | _FIT_KEYS,
          "hybrid": {"family", "kind", "order", "reciprocal"} | _FIT_KEYS}
 #: ``reciprocal`` of :func:`select`: decide from the data, reciprocal forms only, or
 #: non-reciprocal forms only.
 RECIPROCAL_CHOICES = (None, True, False)
+#: Families whose ``phi_turn`` says whether they are reciprocal ("half", the default of a
+#: candidate) or not ("full").
+_TURNED = ("factored", "tabulated", "tucker")
 
 
 class NoCandidateError(ValueError):
@@ -170,7 +182,8 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
            scene: Mapping[str, Any] | None = None,
            dtypes: Iterable[str] = ("float16", "float32", "float64"),
            error_n: int = 1 << 16, seed: int | None = None, exhaustive: bool = False,
-           progress: bool = False, folds: int = FOLDS, reciprocal: bool | None = None) -> Any:
+           progress: bool = False, folds: int = FOLDS, reciprocal: bool | None = None,
+           source_bytes: int | None = None) -> Any:
     """Return the representation of ``brdf`` with the fewest bytes whose error is <= ``tol``.
 
     Parameters
@@ -232,6 +245,12 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
         non-reciprocal forms only (a full-turn factored lobe, ``phi_turn="full"``; a
         general matrix, ``"reciprocal": False`` in a modal or hybrid candidate).
         ``info["reciprocity"]`` records the measurement and the decision.
+    source_bytes : int, optional
+        The size of the source's own file: no candidate larger than it is built (a
+        representation larger than its data is not compression). Default: the size of
+        ``brdf.path`` when the BRDF was read from a file (:func:`project.measured.read_rgl`,
+        :func:`~project.measured.read_merl`, ...), else no limit. ``info["source_bytes"]``
+        records it.
 
     Returns
     -------
@@ -331,9 +350,20 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
         if _is_reciprocal(b.spec) not in allowed:
             kind = "a reciprocal" if _is_reciprocal(b.spec) else "a non-reciprocal"
             b.rows = [_row(b, d, status=f"skipped: {kind} form ({why})") for d in b.dtypes]
+    limit = _source_bytes(brdf, source_bytes)
+    if limit is not None:
+        for b in builds:
+            least = b.bytes(b.dtypes[0])
+            if not b.rows and least is not None and least > limit:
+                b.rows = [_row(b, d, status=f"skipped: {_larger(b.bytes(d), limit)}")
+                          for d in b.dtypes]
     excluded = [b for b in builds if b.rows]
     builds = [b for b in builds if not b.rows]
     if not builds:
+        if limit is not None and all("than the source" in b.rows[0]["status"]
+                                     for b in excluded if _is_reciprocal(b.spec) in allowed):
+            raise ValueError(f"every candidate of the forms allowed is larger than the source "
+                             f"({limit} bytes): add smaller candidates")
         raise ValueError(f"no candidate of the forms allowed ({why}): add "
                          + ("non-reciprocal candidates (phi_turn='full', 'reciprocal': False)"
                             if False in allowed else "reciprocal candidates"))
@@ -369,6 +399,9 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
                 # a larger storage type of a structure whose smaller one already met the
                 # tolerance (or of one larger than the best) cannot be the smallest: it is
                 # not measured (equal bytes are, the smaller error wins the tie)
+                if limit is not None and known is not None and known > limit:
+                    b.rows.append(_row(b, d, status=f"skipped: {_larger(known, limit)}"))
+                    continue
                 if best is not None and not exhaustive and known is not None \
                         and known > best[0]:
                     b.rows.append(_row(b, d, status=f"skipped: {known} bytes, more than the "
@@ -383,6 +416,9 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
                     r, err = None, e
                 if r is None:
                     b.rows.append(_row(b, d, status=f"failed: {err}"))
+                    continue
+                if limit is not None and nbytes is not None and nbytes > limit:
+                    b.rows.append(_row(b, d, status=f"skipped: {_larger(nbytes, limit)}"))
                     continue
                 row = _row(b, d, bytes=nbytes, status="measured", **err)
                 if judge is not None:
@@ -417,12 +453,38 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
                f"{closest['bytes']} bytes ({closest['dtype']})" if closest else
                ": every candidate failed (see .candidates)")
             + f" (errors {how}; {why})" + _resolution_note(done)
-            + "; add larger candidates or raise the tolerance", table)
+            + (f"; the source itself holds {limit} bytes, and no candidate larger than it "
+               "is built (a representation larger than its data is no compression)"
+               if limit is not None else "")
+            + "; add larger candidates or raise the tolerance"
+            + ("" if reciprocal is False or sampled else
+               ", or let non-reciprocal forms compete (reciprocal=False)"
+               if False not in allowed else ""), table)
     nbytes, _, rep, row = best
     rep.info = {**rep.info, "selected": row, "bytes": nbytes, "dtype": row["dtype"],
                 "candidates": table, "tol": tol, "metric": "scene" if judge else metric,
-                "errors": how, "reciprocity": recorded}
+                "errors": how, "reciprocity": recorded, "source_bytes": limit}
     return rep
+
+
+def _source_bytes(brdf: Any, given: int | None) -> int | None:
+    """The size of the source's file (given, or of ``brdf.path``), or None: no limit."""
+    if given is not None:
+        n = nonneg_int(given, "source_bytes")
+        if n < 1:
+            raise ValueError(f"source_bytes must be >= 1, got {given!r}")
+        return n
+    path = getattr(brdf, "path", None)
+    if path is None:
+        return None
+    try:
+        return os.path.getsize(path)
+    except (OSError, TypeError):  # a file since moved: no limit known
+        return None
+
+
+def _larger(nbytes: int, limit: int) -> str:
+    return f"{nbytes} bytes, more than the source ({limit} bytes)"
 
 
 def _resolution_note(done: list[dict[str, Any]]) -> str:
@@ -441,7 +503,7 @@ def _resolution_note(done: list[dict[str, Any]]) -> str:
 
 def _is_reciprocal(spec: Mapping[str, Any]) -> bool:
     """Whether a candidate's form is reciprocal by construction."""
-    lobe = not (spec.get("family") in ("factored", "tabulated")
+    lobe = not (spec.get("family") in _TURNED
                 and spec.get("phi_turn", "half") == "full")
     if spec["form"] == "model":
         return lobe
@@ -586,6 +648,8 @@ def _build_spec(c: Mapping[str, Any], channels: int, dtypes: tuple[str, ...]) ->
         spec["order"] = nonneg_int(spec["order"], "candidate order")
     if "family" in spec:
         choice(spec["family"], "candidate family", project.fitting.FAMILIES)
+        if spec["family"] == "tucker":  # what _is_reciprocal assumes, whatever the BRDF says
+            spec.setdefault("phi_turn", "half")
     if "fit_metric" in spec:
         choice(spec["fit_metric"], "candidate fit_metric", METRICS)
     if not isinstance(spec.get("reciprocal", True), bool):
@@ -626,6 +690,13 @@ def _lobe_reals(spec: dict[str, Any], channels: int) -> int | None:
     if family == "lafortune":
         lobes = int(spec.get("lobes", 1))
         return c + lobes * (c + 2)
+    if family == "tucker":
+        if "ranks" in spec and "knots" in spec:
+            ranks, knots = spec["ranks"], spec["knots"]
+            return tucker_reals(tuple(knots), tuple(ranks), int(spec.get("color_rank", c)), c)
+        # at most the budget (the fit chooses a structure within it): select compares it
+        # with the smallest found so far as if it were exact
+        return int(spec.get("budget", 2048))
     if family == "tabulated":
         n_h, n_d, n_phi = (int(x) for x in spec.get("bins", (32, 32, 64)))
         return n_h * n_d * (n_phi if spec.get("phi_turn") == "full" else n_phi // 2) * c

@@ -15,7 +15,8 @@ LIGHTS = ((0.0, 0.0, 1.0),
 _VIEW = (0.0, 0.0, 1.0)
 #: Published sizes of compact MERL representations (bytes per material), for the charts.
 PUBLISHED = {"neural BRDF (Sztrajman et al. 2021)": 2700,
-             "factored microfacet (Bagher et al. 2016)": 3200}
+             "factored microfacet (Bagher et al. 2016)": 3200,
+             "RGL adaptive tensor (Dupuy & Jakob 2018), ~16 KiB a channel": 3 * 16384}
 #: Candidates of the small table computed when the input holds none: a microfacet lobe, a
 #: rank-1 factored lobe, two Zernike orders and three half/difference tables, one storage
 #: type (float32): about 2 s of CPU on a MERL table.

@@ -20,6 +20,8 @@ family                                     module                             re
 ``"factored"``                             :mod:`project.fitting.model`       271 (defaults)
 ``"dsbrdf"``                               :mod:`project.fitting.dsbrdf`      12 K C
 ``"rr8807"``                               :mod:`project.fitting.rr8807`      4 C + 3
+``"tabulated"``                            :mod:`project.tabulated`           n_h n_d m C
+``"tucker"``                               :mod:`project.tucker`              <= ``budget``
 =========================================  =================================  ==============
 
 C is the number of channels, L and K the number of lobes. The lobe of "factored" is
@@ -89,6 +91,7 @@ from .model import (  # noqa: F401
     METRICS,
     SAMPLE_DEFAULTS,
     TABULATED_OPTIONS,
+    TUCKER_OPTIONS,
     FittedModel,
     fit_model,
 )

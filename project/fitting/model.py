@@ -22,6 +22,16 @@ The "factored" family
     antisymmetric part of non-reciprocal data; such a model has ``reciprocal`` False and
     its params hold ``phi_turn`` = 1.0 (params without it are half-turn lobes).
 
+The "tucker" family
+-------------------
+``"tucker"`` (knots, factor values at the knots, a core and a colour factor)
+    :class:`project.tucker.TuckerBRDF`, a Tucker tensor of piecewise-linear curves in
+    (theta_h, theta_d, phi_d) with knots placed per material: the coupling of the angles
+    that a factored lobe cannot hold, in a few kilobytes. ``fit_model(brdf, "tucker",
+    budget=2048)`` calls :func:`project.tucker.fit_tucker` (options ``budget``, ``ranks``,
+    ``knots``, ``color_rank``, ``grid``, ``warp_d``, ``phi_turn``), which chooses the
+    ranks and knots within the budget of stored reals.
+
 The "tabulated" family
 ----------------------
 ``"tabulated"`` (a (n_h, n_d, m, C) table of q = f cos cos and three grid options)
@@ -107,6 +117,7 @@ from ..sampling import (
     value_errors,
 )
 from ..tabulated import TabulatedBRDF, tabulate
+from ..tucker import TuckerBRDF, fit_tucker
 from ._geometry import _Geometry
 from ._solver import _covariance, _solve
 from .dsbrdf import _DSBRDF, DS_COEFFS
@@ -115,11 +126,13 @@ from .microfacet import _Microfacet
 from .rr8807 import _P, _RR8807, _wavelengths
 
 __all__ = ["DEFAULTS", "FACTORED_OPTIONS", "FAMILIES", "METRICS", "SAMPLE_DEFAULTS",
-           "FittedModel", "fit_model"]
+           "TABULATED_OPTIONS", "TUCKER_OPTIONS", "FittedModel", "fit_model"]
 
 #: The parametric families :func:`fit_model` knows.
 FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807",
-            "tabulated")
+            "tabulated", "tucker")
+#: The families whose model is a table-like object of their own module (not parametric).
+_TABLES = ("factored", "tabulated", "tucker")
 METRICS = ("l2", "log")
 #: Options of :func:`fit_model` and their defaults (``lobes`` is for "lafortune", default 1,
 #: and "dsbrdf", default 3; ``wavelength`` for "rr8807").
@@ -138,6 +151,9 @@ FACTORED_OPTIONS = ("rank", "bins", "warp", "warp_d", "color", "samples", "diffu
 #: Options of :func:`fit_model` for family "tabulated": those of :func:`project.tabulated.
 #: tabulate` (fitting is tabulating), and the error pairs.
 TABULATED_OPTIONS = ("bins", "quantity", "phi_turn", "warp_d", "sample")
+#: Options of :func:`fit_model` for family "tucker": those of :func:`project.tucker.
+#: fit_tucker`, and the error pairs.
+TUCKER_OPTIONS = ("budget", "ranks", "knots", "color_rank", "grid", "warp_d", "phi_turn")
 _ERROR_OPTIONS = ("error_n", "error_seed", "widths")
 
 
@@ -221,6 +237,11 @@ class FittedModel(BRDF):
             return
         if family == "tabulated":
             self._init_tabulated(params, info)
+            return
+        if family == "tucker":
+            # TuckerBRDF checks the keys, the shapes and the grid options
+            self._model = TuckerBRDF.from_params(dict(params))
+            self._adopt("tucker", info)
             return
         if family == "dsbrdf":
             kappa = _param(params, "kappa", 3, low=0.0)
@@ -326,7 +347,7 @@ class FittedModel(BRDF):
         self.info = {} if info is None else dict(info)
 
     def _eval(self, wi: NDArray, wo: NDArray) -> NDArray:
-        if self.family in ("factored", "tabulated"):
+        if self.family in _TABLES:
             return self._model._eval(wi, wo)
         return self._model.value(self._x, _Geometry(wi, wo))
 
@@ -336,6 +357,12 @@ class FittedModel(BRDF):
             turn = "" if m.phi_turn == "half" else f", phi_turn={m.phi_turn!r}"
             return (f"FittedModel('factored', rank={m.rank}, bins={m.bins}, warp={m.warp!r}, "
                     f"warp_d={m.warp_d!r}{turn}, channels={self.channels}, "
+                    f"nbytes={self.nbytes})")
+        if self.family == "tucker":
+            m = self._model
+            return (f"FittedModel('tucker', knots={m.knot_counts}, ranks={m.ranks}, "
+                    f"color_rank={m.color_rank}, warp_d={m.warp_d!r}, "
+                    f"phi_turn={m.phi_turn!r}, channels={self.channels}, "
                     f"nbytes={self.nbytes})")
         if self.family == "tabulated":
             m = self._model
@@ -441,6 +468,8 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         return _fit_factored(brdf, metric, options, start)
     if family == "tabulated":
         return _fit_tabulated(brdf, metric, options, start)
+    if family == "tucker":
+        return _fit_tucker(brdf, metric, options, start)
     opts = _options(family, options)
     if not callable(getattr(brdf, "eval", None)):
         raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)) or "
@@ -520,7 +549,7 @@ def _blas() -> ThreadpoolController:
 def _fit_samples(meas: Measurements, family: str, metric: str, options: dict,
                  start: float) -> FittedModel:
     """fit_model(measurements, family): a weighted fit to the samples, cross-validated."""
-    if family in ("factored", "tabulated"):
+    if family in _TABLES:
         raise ValueError(
             f"family {family!r} tabulates a BRDF on a dense rule in the half/difference angles "
             "and needs a BRDF that can be evaluated anywhere; scattered samples do not cover "
@@ -649,6 +678,19 @@ def _fit_tabulated(brdf: object, metric: str, options: dict, start: float) -> Fi
                    "warp_d": tab.warp_d, "phi_turn": tab.phi_turn, "quantity": tab.quantity,
                    "restarts": 1,
                    "samples": {"fit": "project.tabulated.tabulate (grid nodes)",
+                               "error": described},
+                   "seconds": time.perf_counter() - start}
+    return fitted
+
+
+def _fit_tucker(brdf: object, metric: str, options: dict, start: float) -> FittedModel:
+    """fit_model(brdf, "tucker"): fit_tucker, then the errors on independent pairs."""
+    own, pairs, described = _table_options("tucker", metric, options, TUCKER_OPTIONS)
+    t = fit_tucker(brdf, **own)
+    fitted = FittedModel("tucker", t.params)
+    fitted.info = {**t.info, **_errors(brdf, fitted, pairs), "metric": metric,
+                   "warp_d": t.warp_d, "phi_turn": t.phi_turn, "restarts": 1,
+                   "samples": {"fit": f"project.tucker.fit_tucker (grid {t.info['grid']})",
                                "error": described},
                    "seconds": time.perf_counter() - start}
     return fitted

@@ -73,7 +73,7 @@ def test_schema_layout(tmp_path, rng):
     with h5py.File(tmp_path / "s.h5", "r") as f:
         # text attributes are fixed-length UTF-8 (h5py reads them as bytes)
         assert f.attrs["format"] == FORMAT.encode()
-        assert f.attrs["schema_version"] == SCHEMA_VERSION == 4
+        assert f.attrs["schema_version"] == SCHEMA_VERSION == 5
         assert f.attrs["reciprocal"]
         assert f.attrs["content"] == b"coefficients" and f.attrs["dtype"] == b"float64"
         assert f.attrs["basis_kind"] == b"zernike" and f.attrs["basis_order"] == 4
