@@ -77,6 +77,8 @@ _FACTORED_TOL = 1e-4
 METRICS = ("l2", "log")
 #: Budgets (stored reals) of the Tucker candidates among the defaults.
 TUCKER_BUDGETS = (256, 512, 1024, 2048, 4096, 8192, 16384)
+#: The finer grid of the last Tucker candidates (project.tucker.GRID is the default).
+FINE_GRID = (384, 96, 192)
 #: The default candidates: parametric lobes, a ladder of factored tables, low orders of
 #: the Zernike basis (broad materials) and factored lobes with a Zernike residual.
 DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
@@ -108,6 +110,10 @@ DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
     # (reciprocal) and the whole turn (not)
     *({"form": "model", "family": "tucker", "budget": n, "phi_turn": turn}
       for n in TUCKER_BUDGETS for turn in ("half", "full")),
+    # the same on a finer grid, whose own floor is lower (a glossy film: 0.011 instead of
+    # 0.020): tried only when nothing of these sizes met the tolerance on the default grid
+    *({"form": "model", "family": "tucker", "budget": n, "phi_turn": turn,
+       "grid": FINE_GRID} for n in TUCKER_BUDGETS[-2:] for turn in ("half", "full")),
     # the ladder's end: tables of q in the half/difference angles (project.tabulated), which
     # meet any tolerance down to their interpolation floor (second order in the cell size;
     # 10 % at 9 to 37 kB on three RGL-EPFL files), up to the resolution of the MERL grid

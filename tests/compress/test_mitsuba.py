@@ -35,6 +35,7 @@ from compress.mitsuba._sampling import (  # noqa: E402
 from project import FittedModel  # noqa: E402
 from project.models import CookTorrance  # noqa: E402
 from project.tabulated import tabulate  # noqa: E402
+from project.tucker import fit_tucker  # noqa: E402
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 RGL = DATA / "paper_white_rgb.bsdf"
@@ -76,6 +77,10 @@ def _reps() -> dict[str, object]:
         "d_table": np.linspace(1.0, 1.5, nd)[None, :, None], "warp": 3.0, "warp_d": 2.0})
     tab = FittedModel("tabulated", tabulate(CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx"),
                                             (16, 12, 8)).params)
+    # a full-turn Tucker tensor (not reciprocal by construction)
+    tucker = FittedModel("tucker", fit_tucker(CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx"),
+                                              budget=400, grid=(32, 16, 16),
+                                              phi_turn="full").params)
     zb = basis.HemiZernike(2)
     res = np.zeros((zb.size, zb.size))
     res[0, 0] = 0.2  # f = 0.1 / pi: a diffuse residual
@@ -83,7 +88,7 @@ def _reps() -> dict[str, object]:
                                                 "alpha": 0.2, "f0": 0.04}),
                     CoefficientMatrix(zb, res, quantity="f"))
     return {"matrix": matrix, "ggx": ggx, "beckmann": beck, "factored": factored,
-            "tabulated": tab, "hybrid": hybrid}
+            "tabulated": tab, "tucker": tucker, "hybrid": hybrid}
 
 
 _CACHE: dict[str, object] = {}
@@ -152,7 +157,7 @@ def _eval_llvm(b, wi, wo, reverse=False):
 
 # -- eval ----------------------------------------------------------------------------------------
 
-KINDS = ["matrix", "ggx", "beckmann", "factored", "tabulated", "hybrid"]
+KINDS = ["matrix", "ggx", "beckmann", "factored", "tabulated", "tucker", "hybrid"]
 
 
 @pytest.mark.parametrize("kind", KINDS)
@@ -288,7 +293,7 @@ def test_sampler_kinds(reps):
     mix = kinds["beckmann"]
     assert mix.kind == "mixture" and [s.kind for s in mix.samplers] == ["beckmann", "table2d"]
     assert mix.samplers[0].alpha == 0.25
-    for k in ("matrix", "factored", "tabulated", "hybrid"):
+    for k in ("matrix", "factored", "tabulated", "tucker", "hybrid"):
         assert kinds[k].kind == "table2d", (k, kinds[k])
     # the lobe each would get without the table: a GGX lobe fitted to the half-vector
     # profile of the projected GGX (alpha 0.8) model (truncation at order 6 broadens it,
