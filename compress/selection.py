@@ -474,7 +474,7 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
 
 
 def _source_bytes(brdf: Any, given: int | None) -> int | None:
-    """The size of the source's file (given, or of ``brdf.path``), or None: no limit."""
+    """Return the size of the source's file (given, or of ``brdf.path``); None: no limit."""
     if given is not None:
         n = nonneg_int(given, "source_bytes")
         if n < 1:

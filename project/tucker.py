@@ -118,7 +118,7 @@ _HALF_PI = 0.5 * math.pi
 
 def tucker_reals(knots: tuple[int, int, int], ranks: tuple[int, int, int], color_rank: int,
                  channels: int) -> int:
-    """Stored reals of a :class:`TuckerBRDF` of this structure (module notes).
+    """Return the stored reals of a :class:`TuckerBRDF` of this structure (module notes).
 
     Examples
     --------
@@ -224,6 +224,7 @@ class TuckerBRDF(BRDF):
 
     @property
     def color_rank(self) -> int:
+        """The rank of the colour factor (columns of ``color``)."""
         return int(self._core.shape[3])
 
     @property
@@ -422,7 +423,7 @@ def _hats(s: NDArray, knots: NDArray, periodic: bool) -> NDArray[np.float64]:
 
 
 def _mode(x: NDArray, a: NDArray, k: int) -> NDArray:
-    """x times a (new, old) along axis k."""
+    """X times a (new, old) along axis k."""
     return np.moveaxis(np.tensordot(a, x, axes=(1, k)), 0, k)
 
 
@@ -479,7 +480,7 @@ class _Prepared:
         self.spectra.append(np.maximum(np.linalg.eigvalsh(g @ g.T)[::-1], 0.0))
 
     def knot_set(self, k: int, m: int) -> NDArray[np.float64]:
-        """The first m knots of angle k, sorted, as values exact in float16."""
+        """Return the first m knots of angle k, sorted."""
         return np.sort(self.s[k][self.knots[k][:m]])
 
     def tail(self, k: int, r: int) -> float:
@@ -487,9 +488,11 @@ class _Prepared:
         return float(self.spectra[k][r:].sum())
 
     def knot_errors(self, k: int, ranks: tuple[int, ...]) -> NDArray[np.float64]:
-        """(len(ranks), len(_KNOTS)): weighted squared residual of the first r guides with m
-        knots (inf where m is not allowed: below the rank or the first count, beyond the
-        grid)."""
+        """Return the weighted squared residual of the first r guides with m knots.
+
+        Shape (len(ranks), len(_KNOTS)); inf where m is not allowed (below the rank or the
+        first count, beyond the grid).
+        """
         res = np.cumsum(self.residuals[k], axis=1)  # over the guides
         out = np.full((len(ranks), len(_KNOTS)), np.inf)
         for j, m in enumerate(_KNOTS):
@@ -536,8 +539,10 @@ def _greedy_knots(s: NDArray, guide: NDArray, w: NDArray, periodic: bool,
 
 def _fit_structure(prep: _Prepared, knots: tuple[int, int, int], ranks: tuple[int, int, int],
                    color_rank: int, sweeps: int = 2) -> tuple[dict, NDArray]:
-    """Fit one structure: return the arrays of a TuckerBRDF and the relative errors per
-    channel on the fine grid."""
+    """Fit one structure; return the arrays of a TuckerBRDF and the errors on the grid.
+
+    The errors are relative, per channel, on the fine grid (projection and truncation).
+    """
     ks = [_f16(prep.knot_set(k, knots[k])) for k in range(3)]
     projs, chols = [], []
     for k in range(3):
@@ -581,7 +586,7 @@ def _fit_structure(prep: _Prepared, knots: tuple[int, int, int], ranks: tuple[in
 
 
 def _leading(x: NDArray, k: int, r: int) -> NDArray[np.float64]:
-    """The r leading left singular vectors of x unfolded along k (from its Gram matrix)."""
+    """Return the r leading left singular vectors of x unfolded along k (by its Gram)."""
     g = _unfold(x, k)
     u = linalg.eigh(g @ g.T)[1]
     return np.ascontiguousarray(u[:, ::-1][:, :r])
@@ -596,7 +601,7 @@ def _f16(k: NDArray) -> NDArray[np.float64]:
 
 
 def _structures(prep: _Prepared, budget: int) -> list[tuple[float, tuple, tuple, int]]:
-    """The structures within ``budget`` reals, best first by the error bound."""
+    """Return the structures within ``budget`` reals, best first by the error bound."""
     c = prep.channels
     sizes = [s.size for s in prep.s]
     knots = np.array(_KNOTS)
@@ -628,7 +633,7 @@ def _structures(prep: _Prepared, budget: int) -> list[tuple[float, tuple, tuple,
 
 def _knapsack(errs: tuple[NDArray, ...], costs: list[NDArray],
               room: int) -> tuple[float, tuple[int, int, int]] | None:
-    """The knot counts (one per angle) of least summed error within ``room`` reals."""
+    """Return the knot counts (one per angle) of least summed error within ``room``."""
     cost = costs[0][:, None, None] + costs[1][None, :, None] + costs[2][None, None, :]
     err = errs[0][:, None, None] + errs[1][None, :, None] + errs[2][None, None, :]
     err = np.where(cost <= room, err, np.inf)

@@ -13,7 +13,10 @@ What it measures
    - ``MERLBRDF.eval`` (the peer: trilinear lookup, the public call with validation);
    - ``project.measured.merl._merl_lookup_kernel``, the lookup kernel alone (no validation);
    - ``CoefficientMatrix.eval`` (the public call with validation) for each basis;
-   - ``Evaluator.eval_flat`` (no validation, preallocated output) for each basis.
+   - ``Evaluator.eval_flat`` (no validation, preallocated output) for each basis;
+   - the compact forms ``select`` chooses on real materials, fitted to the table once
+     (untimed): full-turn factored lobes of rank 4 and 8 (``project.factored``) and Tucker
+     tensors of 1024 and 4096 reals (``project.tucker``), ``FittedModel.eval``.
 
    Every callable runs once untimed (compilation, cache, first touch), then all run in turn
    for ``--repeats`` rounds and the best call of each is reported: ms per call, million pairs
@@ -115,6 +118,14 @@ def evaluation(args: argparse.Namespace) -> None:
         ev = cm.evaluator()
         fns[f"{b!r} CoefficientMatrix.eval"] = lambda cm=cm: cm.eval(wi, wo)
         fns[f"{b!r} eval_flat"] = lambda ev=ev: ev.eval_flat(wi, wo, out)
+    with project.factored.reuse_samples():
+        forms = [project.fit_model(brdf, "factored", rank=r, bins=b, phi_turn="full",
+                                   error_n=4096) for r, b in ((4, (32, 24, 16)),
+                                                              (8, (48, 32, 16)))]
+        forms += [project.fit_model(brdf, "tucker", budget=n, phi_turn="full", error_n=4096)
+                  for n in (1024, 4096)]
+    for m in forms:
+        fns[f"{m!r}"[:90]] = lambda m=m: m.eval(wi, wo)
     best = best_times(fns, args.repeats)
     ref = best["MERLBRDF.eval (peer)"]
     print(f"\n{args.pairs} pairs, RGB, table {brdf.name}")

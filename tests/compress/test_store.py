@@ -139,13 +139,13 @@ def test_foreign_hdf5(tmp_path):
         load(p)
 
 
-@pytest.mark.parametrize("version", [5, 0])
+@pytest.mark.parametrize("version", [6, 0])
 def test_unknown_version(tmp_path, rng, version):
     p = save(_iso(basis.HemiZernike(2), rng, 1), tmp_path / "v.h5")
     with h5py.File(p, "r+") as f:
         f.attrs["schema_version"] = version
     with pytest.raises(ValueError, match=rf"schema version {version}; .* reads schema "
-                                         r"versions 1, 2, 3, 4: upgrade scatmodes"):
+                                         r"versions 1, 2, 3, 4, 5: upgrade scatmodes"):
         load(p)
 
 
@@ -242,7 +242,7 @@ def test_schema_1_and_2_files_still_load(tmp_path, rng, version, b, channels):
             f.attrs["basis_kind"] = "hemi_sh"
     with pytest.raises(ValueError, match="sideways"):
         load(tmp_path / "old.h5")
-    assert READABLE_VERSIONS == (1, 2, 3, 4)
+    assert READABLE_VERSIONS == (1, 2, 3, 4, 5)
 
 
 @pytest.mark.parametrize("kind", basis.KINDS)
@@ -893,3 +893,12 @@ def test_schema_4_needs_the_reciprocal_flag(tmp_path, rng):
         f.attrs["reciprocal"] = "yes"
     with pytest.raises(ValueError, match="reciprocal must be a boolean"):
         load(p)
+
+
+def test_schema_4_files_still_load(tmp_path, rng):
+    """Schema 5 only adds the "tucker" family: a file that says 4 reads as before."""
+    cm = _iso(basis.HemiZernike(3), rng, 3)
+    p = save(cm, tmp_path / "v4.h5")
+    with h5py.File(p, "r+") as f:
+        f.attrs["schema_version"] = 4
+    assert np.array_equal(load(p).matrix, cm.matrix)

@@ -315,9 +315,11 @@ def test_rgl_files_are_not_reciprocal(path):
     assert 0.0 < r.residual_stderr < 0.05 * r.residual  # 2**14 pairs: about 1 %
     assert not r.reciprocal_within(0.01)
     assert sum(b["share"] for b in r.bands) == pytest.approx(1.0, abs=1e-12)
-    # in the worst channel most antisymmetric energy lies beyond 75 degrees on all three
-    # files (module notes: 0.71, 0.81, 0.87)
-    assert r.bands[-1]["share"] > 0.5
+    # in the worst channel most antisymmetric energy lies beyond 75 degrees on the three
+    # files of the module notes (0.71, 0.81, 0.87), not on a glossy film
+    # (chm_orange: 0.19 beyond 75 degrees), so it is not a property of measured data
+    if path.stem in ("paper_white_rgb", "colodur_napoli_4f_rgb", "vch_golden_yellow_rgb"):
+        assert r.bands[-1]["share"] > 0.5
     json.dumps(r.describe(), allow_nan=False)
 
 

@@ -176,17 +176,28 @@ def test_error_is_second_order():
     assert 3.0 < g[0] / g[1] < 5.0
 
 
+#: The files whose convergence the module notes tabulate (the others: a property, below).
+_DOCUMENTED = ("paper_white_rgb", "colodur_napoli_4f_rgb", "vch_golden_yellow_rgb")
+
+
 @pytest.mark.parametrize("path", _rgl_files(), ids=lambda p: p.stem)
 def test_rgl_material_converges(path, errors_pairs):
     # the measured convergence (module notes): 0.010-0.022 at (32, 32, 64) on the three
-    # files with the default grazing theta_d warp; bound 0.04 (above 20 standard errors)
+    # files with the default grazing theta_d warp; bound 0.04 (above 20 standard errors).
+    # On any other file (sharper films reach 0.2 at that size) refining every axis by 2
+    # must lower the error by a third at least (second order: 4x once the lobe is resolved)
     if not path.is_file():
         pytest.skip(f"{path} not present (the RGL files live in ../shared/data/rgl)")
     from project.measured import read_rgl
     brdf = read_rgl(path)
     tab = tabulate(brdf, (32, 32, 64))
     assert tab.phi_turn == "full" and tab.channels == brdf.channels
-    assert brdf_errors(brdf, tab, errors_pairs)["l2"] < 0.04
+    coarse = brdf_errors(brdf, tab, errors_pairs)["l2"]
+    if path.stem in _DOCUMENTED:
+        assert coarse < 0.04
+    else:
+        fine = brdf_errors(brdf, tabulate(brdf, (64, 64, 128)), errors_pairs)["l2"]
+        assert fine < 2 / 3 * coarse, (coarse, fine)
 
 
 # -- values at the horizon ------------------------------------------------------------------
