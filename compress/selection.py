@@ -36,7 +36,17 @@ Why the three forms: a narrow specular peak holds almost all of the L2 norm of a
 material, which truncated expansions resolve only at orders far beyond their size budget
 (above 90 % error at order 24 on metals and plastics), while a few kilobytes of tables in
 the half/difference angles of Rusinkiewicz (1998) hold it; broad materials (fabrics,
-matte paints) are often smallest as a low-order expansion.
+matte paints) are often smallest as a low-order expansion. Between the factored lobes (sums
+of products of 1-D tables, which cannot hold how a sharp lobe changes shape with theta_d
+and phi_d) and full tables, the Tucker tensors of :mod:`project.tucker` hold that coupling
+in a few kilobytes: on eight real RGL-EPFL films and paints every material met 10 % within
+2.1 kB and 5 % within 8.1 kB (float16), where the full-turn factored lobes reached at
+best 0.23 on a glossy film and the tables needed 17.5 MB.
+
+**The source's size.** No candidate larger than the file it compresses is built
+(``source_bytes``, by default the size of ``brdf.path``): a 659 kB RGL file is never
+answered by a 17.5 MB table. When nothing smaller meets the tolerance,
+:class:`NoCandidateError` says what the best candidate reached and how large the source is.
 """
 
 from __future__ import annotations
@@ -463,9 +473,10 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
                "is built (a representation larger than its data is no compression)"
                if limit is not None else "")
             + "; add larger candidates or raise the tolerance"
-            + ("" if reciprocal is False or sampled else
-               ", or let non-reciprocal forms compete (reciprocal=False)"
-               if False not in allowed else ""), table)
+            + (", or let non-reciprocal forms compete (reciprocal=False): the data's "
+               f"reciprocity floor, {rec.floor:.3g}, is a sizable part of that error"
+               if False not in allowed and not sampled and math.isfinite(rec.floor)
+               and rec.floor >= 0.25 * least else ""), table)
     nbytes, _, rep, row = best
     rep.info = {**rep.info, "selected": row, "bytes": nbytes, "dtype": row["dtype"],
                 "candidates": table, "tol": tol, "metric": "scene" if judge else metric,

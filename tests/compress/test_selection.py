@@ -138,6 +138,10 @@ def test_failed_candidates_are_reported_not_raised():
     ({"candidates": []}, ValueError, "at least one candidate"),
     ({"dtypes": ("float8",)}, ValueError, "dtypes"),
     ({"scene": {"lights": [[0.0, 0.0, 1.0]]}}, ValueError, "'views'"),
+    ({"source_bytes": 0}, ValueError, "source_bytes must be >= 1"),
+    ({"source_bytes": 2.5}, TypeError, "source_bytes"),
+    ({"source_bytes": 10, "candidates": [{"form": "modal", "kind": "zernike", "order": 4}]},
+     ValueError, "larger than the source .10 bytes.: add smaller candidates"),
 ])
 def test_bad_arguments(kwargs, error, match):
     args = {"tol": 0.1, **kwargs}
@@ -367,3 +371,54 @@ def test_tables_end_the_ladder():
     with pytest.raises(NoCandidateError, match=r"the finest table, .*bins=\(32, 24, 16\).* "
                                                r"reaches .*needs finer tables"):
         select(sharp, 1e-4, candidates=cands, dtypes=("float16",), **FAST)
+
+
+# -- the source's size and the compact non-reciprocal forms --------------------------------------
+
+def test_no_candidate_larger_than_the_source_is_built(tmp_path):
+    """source_bytes (or the size of brdf.path) bounds every candidate: larger ones are
+    reported as skipped, never fitted; a tolerance that only they could meet raises
+    NoCandidateError naming the source's size."""
+    sharp = CookTorrance([0.2, 0.3, 0.4], 0.08, "ggx", ior=1.5)
+    cands = [{"form": "model", "family": "lambert+ggx", "restarts": 1},
+             {"form": "model", "family": "tabulated", "bins": (16, 12, 8), "phi_turn": "half"},
+             {"form": "model", "family": "tabulated", "bins": (32, 24, 16),
+              "phi_turn": "half"}]
+    limit = _reals(dict(cands[2], form="model"), 3) * 2 - 1  # the larger table at float16
+    with pytest.raises(NoCandidateError, match=rf"the source itself holds {limit} bytes") as e:
+        select(sharp, 0.03, candidates=cands, dtypes=("float16",), source_bytes=limit, **FAST)
+    rows = {r["label"]: r for r in e.value.candidates}
+    big = rows["model: family=tabulated, bins=(32, 24, 16), phi_turn=half"]
+    assert big["status"] == f"skipped: {limit + 1} bytes, more than the source ({limit} bytes)"
+    assert "reciprocal=False" not in str(e.value)  # a reciprocal BRDF: no such advice
+    # without the limit the larger table is built and meets the tolerance
+    rep = select(sharp, 0.03, candidates=cands, dtypes=("float16",), **FAST)
+    assert rep.info["bytes"] == limit + 1 and rep.info["source_bytes"] is None
+
+    # the size of a file read from disk is the default limit
+    class FromFile(CookTorrance):
+        path = tmp_path / "source.bin"
+
+    (tmp_path / "source.bin").write_bytes(b"x" * 100)
+    rep = select(FromFile([0.2, 0.3, 0.4], 0.3, "ggx"), 0.2, candidates=cands,
+                 dtypes=("float16",), **FAST)
+    assert rep.info["source_bytes"] == 100 and rep.info["bytes"] <= 100
+    assert all(r["status"].startswith("skipped") for r in rep.info["candidates"]
+               if r["bytes"] is not None and r["bytes"] > 100)
+
+
+def test_tucker_candidates_are_measured_as_stored():
+    """A Tucker candidate stays within its budget of reals, is measured after rounding to
+    float16 (its bytes are the stored ones), and a full-turn one is not reciprocal; the
+    same error comes back from the model itself on the same pairs."""
+    sharp = CookTorrance([0.2, 0.3, 0.4], 0.08, "ggx", ior=1.5)
+    cands = [{"form": "model", "family": "tucker", "budget": 700, "phi_turn": "full",
+              "grid": (128, 32, 32)}]
+    rep = select(sharp, 0.05, candidates=cands, dtypes=("float16",), reciprocal=False,
+                 **FAST)
+    row = rep.info["selected"]
+    assert rep.family == "tucker" and not rep.reciprocal and row["l2"] < 0.05
+    assert rep.info["bytes"] == row["bytes"] == 2 * rep.nparams <= 2 * 700
+    for k, v in rep.params.items():  # held rounded, as it would be stored
+        assert np.array_equal(v, v.astype(np.float16).astype(np.float64)), k
+    assert _reals({"form": "model", "family": "tucker", "budget": 700}, 3) == 700
