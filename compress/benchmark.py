@@ -48,23 +48,27 @@ cos theta_o < 0.1, 1.1 % of the disc, hold at most 2.6 % of the sum of squares o
 reference picture (under the 75-degree light; 1.1 % at 45 degrees, none with the light at
 the view), so the image error is not dominated by the horizon.
 
-**Measured example** (the three RGL files of :mod:`project.reciprocity`'s table, default
-candidates, tolerances 0.10 and 0.05, 2 workers on 2 cores, 83 s in all; bytes and l2 of
-the smallest representation within each tolerance, "nr" a non-reciprocal form; floor the
+**Measured example** (the eight RGL-EPFL files of ``../shared/data/rgl``, default
+candidates, tolerances 0.10 and 0.05, 2 workers on 2 cores, 2 min 22 s in all; bytes and l2
+of the smallest representation within each tolerance, float16 unless marked; floor the
 reciprocity floor; seconds of select, both tolerances):
 
-==========================  ======  ===============  ================  =====  =======
-file                        floor   0.10: B, l2      0.05: B, l2       image  seconds
-==========================  ======  ===============  ================  =====  =======
-paper_white_rgb.bsdf        0.0224  16, 0.044        16, 0.044         0.080  2.4
-colodur_napoli_4f_rgb.bsdf  0.0518  124, 0.095       720, 0.047 nr     0.067  10.7
-vch_golden_yellow_rgb.bsdf  0.0876  3180, 0.093 nr   73728, 0.037 nr   0.019  75.0
-==========================  ======  ===============  ================  =====  =======
+======================  ======  ========================  ========================  =======
+file                    floor   0.10: form, B, l2         0.05: form, B, l2         seconds
+======================  ======  ========================  ========================  =======
+paper_white             0.022   Lambert+GGX, 16, 0.043    the same                  1.3
+colodur_napoli_4f       0.051   factored, 124, 0.095      factored+Zernike, 720     10.5
+ilm_l3_37_metallic      0.114   factored, 312 (f32)       Tucker, 502, 0.023        8.0
+ilm_l3_37_matte         0.078   factored, 306, 0.094      Tucker, 2028, 0.047       25.7
+cm_military_green       0.117   Tucker, 510, 0.084        Tucker, 2030, 0.045       21.5
+cc_nothern_aurora       0.260   Tucker, 1006, 0.067       Tucker, 2034, 0.041       23.9
+vch_golden_yellow       0.087   Tucker, 512, 0.072        Tucker, 2028, 0.036       45.6
+chm_orange              0.408   Tucker, 2044, 0.095       Tucker, 8060, 0.042       29.0
+======================  ======  ========================  ========================  =======
 
 The paper is a Lambertian plus GGX lobe; the matte paint a rank-1 factored lobe at 0.10
 and a full-turn factored lobe with a general Zernike residual at 0.05 (its floor exceeds
-0.05); the glossy vinyl a full-turn rank-8 factored lobe at 0.10 and a full-turn table at
-0.05. The image error is that of the 0.05 representation.
+0.05); the films and the other paints full-turn Tucker tensors (:mod:`project.tucker`).
 """
 
 from __future__ import annotations
