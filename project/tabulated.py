@@ -118,8 +118,8 @@ from basis.validation import check_bytes, choice
 from ._halfdiff import cell, cell_trilinear, half_difference, periodic_cell
 from .brdf import BRDF
 
-__all__ = ["D_WARPS", "PHI_TURNS", "QUANTITIES", "SAMPLES", "TabulatedBRDF", "tabulate",
-           "table_nbytes"]
+__all__ = ["D_WARPS", "PHI_TURNS", "QUANTITIES", "SAMPLES", "TabulatedBRDF", "option_name",
+           "tabulate", "table_nbytes"]
 
 #: theta_d = (pi/2) (1 - (1 - s)^p), s uniform on the theta_d nodes: p of each warp.
 D_WARPS = {"linear": 1.0, "grazing": 2.0}
@@ -167,6 +167,15 @@ def table_nbytes(bins: object, channels: int = 3, *, phi_turn: str = "full",
     n_h, n_d, n_phi = _bins(bins)
     m = n_phi if choice(phi_turn, "phi_turn", tuple(PHI_TURNS)) == "full" else n_phi // 2
     return int(itemsize) * n_h * n_d * m * int(channels)
+
+
+def option_name(params: dict[str, ArrayLike], key: str, table: dict[str, float]) -> str:
+    """Return the name in ``table`` of the 0-d value ``params[key]`` (a stored grid option)."""
+    v = np.asarray(params[key], dtype=np.float64)
+    found = [k for k, x in table.items() if v.ndim == 0 and float(v) == x]
+    if not found:
+        raise ValueError(f"params[{key!r}] must be one of {table} (a 0-d value), got {v}")
+    return found[0]
 
 
 def _h_angle(s: NDArray) -> NDArray:
@@ -288,15 +297,10 @@ class TabulatedBRDF(BRDF):
         if set(params) != keys:
             raise ValueError(f"params of family 'tabulated' must be exactly {sorted(keys)}, "
                              f"got {sorted(params)}")
-        names = {}
-        for key, arg, table in (("warp_d", "warp_d", D_WARPS), ("phi_turn", "phi_turn",
-                                PHI_TURNS), ("cosines", "quantity", QUANTITIES)):
-            v = np.asarray(params[key], dtype=np.float64)
-            found = [k for k, x in table.items() if v.ndim == 0 and float(v) == x]
-            if not found:
-                raise ValueError(f"params[{key!r}] must be one of {table} (a 0-d value), "
-                                 f"got {v}")
-            names[arg] = found[0]
+        names = {arg: option_name(params, key, table)
+                 for key, arg, table in (("warp_d", "warp_d", D_WARPS),
+                                         ("phi_turn", "phi_turn", PHI_TURNS),
+                                         ("cosines", "quantity", QUANTITIES))}
         return cls(params["table"], info=info, **names)
 
     def _eval(self, wi: NDArray[np.float64], wo: NDArray[np.float64]) -> NDArray[np.float64]:

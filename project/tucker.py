@@ -94,7 +94,7 @@ from basis.validation import choice, nonneg_int
 from ._halfdiff import half_difference
 from .brdf import BRDF
 from .factored import kept_for
-from .tabulated import D_WARPS, PHI_TURNS, tabulate
+from .tabulated import D_WARPS, PHI_TURNS, option_name, tabulate
 
 __all__ = ["GRID", "TuckerBRDF", "fit_tucker", "tucker_reals"]
 
@@ -264,14 +264,8 @@ class TuckerBRDF(BRDF):
         if set(params) != keys:
             raise ValueError(f"params of family 'tucker' must be exactly {sorted(keys)}, got "
                              f"{sorted(params)}")
-        names = {}
-        for key, table in (("warp_d", D_WARPS), ("phi_turn", PHI_TURNS)):
-            v = np.asarray(params[key], dtype=np.float64)
-            found = [k for k, x in table.items() if v.ndim == 0 and float(v) == x]
-            if not found:
-                raise ValueError(f"params[{key!r}] must be one of {table} (a 0-d value), "
-                                 f"got {v}")
-            names[key] = found[0]
+        names = {key: option_name(params, key, table)
+                 for key, table in (("warp_d", D_WARPS), ("phi_turn", PHI_TURNS))}
         return cls([params[f"{n}_knots"] for n in _NAMES],
                    [params[f"{n}_factor"] for n in _NAMES], params["core"], params["color"],
                    info=info, **names)
