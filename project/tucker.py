@@ -89,7 +89,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy import linalg
 
 from basis.jit import loopjit, njit, run_parallel, writable
-from basis.validation import choice, nonneg_int
+from basis.validation import check_bytes, choice, nonneg_int
 
 from ._halfdiff import half_difference
 from .brdf import BRDF
@@ -108,6 +108,8 @@ _RANKS = ((1, 2, 3, 4, 5, 6, 8, 10, 12, 14, 16, 20, 24, 28, 32),
 #: (two ends; four over a periodic turn).
 _KNOTS = (2, 3, 4, 5, 6, 8, 10, 12, 14, 16, 20, 24, 28, 32, 40, 48, 56, 64, 80, 96)
 _MIN_KNOTS = (2, 2, 4)
+#: Colour ranks the search considers at most (spectral data: the leading spectra).
+_COLOR_RANKS = 8
 #: How many structures, best by the bound, are fitted exactly.
 _REFITS = 3
 #: Singular vectors that guide the knots (more carry too little weight to matter).
@@ -436,6 +438,11 @@ class _Prepared:
 
     def __init__(self, brdf: Any, grid: tuple[int, int, int], warp_d: str,
                  phi_turn: str) -> None:
+        nodes = grid[0] * grid[1] * grid[2] * PHI_TURNS[phi_turn]
+        channels = int(getattr(brdf, "channels", 1))
+        # the table, the weighted and the normalised tensors, and one unfolding's product
+        check_bytes(8.0 * 4 * nodes * channels,
+                    f"a Tucker fit on the grid {grid} with {channels} channels")
         tab = tabulate(brdf, grid, phi_turn=phi_turn, warp_d=warp_d)
         t = np.array(tab.table)
         n_h, n_d, m = t.shape[:3]
@@ -602,7 +609,7 @@ def _structures(prep: _Prepared, budget: int) -> list[tuple[float, tuple, tuple,
     errs = [prep.knot_errors(k, _RANKS[k]) for k in range(3)]
     tails = [[prep.tail(k, r) for r in _RANKS[k]] for k in range(3)]
     out = []
-    for rc in range(1, c + 1):
+    for rc in range(1, min(c, _COLOR_RANKS) + 1):
         tail_c = prep.tail(3, rc)
         for i1, r1 in enumerate(_RANKS[0]):
             for i2, r2 in enumerate(_RANKS[1]):
