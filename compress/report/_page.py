@@ -156,6 +156,8 @@ class _Page:
     # -- 1. summary ---------------------------------------------------------------------------
     def _summary(self) -> str:
         rows: list[tuple[str, str]] = [("form", self.kind)]
+        if hasattr(self.rep, "family") and hasattr(self.rep, "params"):
+            rows.append(("family", f"{self.rep!r}"))
         if self.file is not None:
             rows.append(("file", f"{self.file} ({self.file.stat().st_size:,} bytes on disk)"))
             header = _header(self.file)

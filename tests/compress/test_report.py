@@ -387,3 +387,21 @@ def test_report_in_a_real_browser(browser, selected, tmp_path):
            or (e.get("method") == "Log.entryAdded"
                and e["params"]["entry"]["level"] == "error")]
     assert bad == []
+
+
+def test_tucker_file_report(tmp_path):
+    """A saved Tucker tensor (float16) reads back and gets its page: its family, ranks and
+    stored bytes, and its l2 against the source it was fitted to, as measured by the fit
+    (independent pairs, to two digits: the page's pairs are others)."""
+    from project.tucker import fit_tucker
+
+    t = fit_tucker(CT, budget=400, grid=(64, 16, 32), phi_turn="full")
+    m = project.FittedModel("tucker", t.params, info=dict(t.info))
+    path = compress.save(m, tmp_path / "t.h5", dtype="float16")
+    page = report(path, CT, table=False)
+    assert "<td>family</td><td>FittedModel(&#x27;tucker&#x27;, knots=" in page
+    assert f"<td>float16</td><td>{2 * m.nparams:,}</td>" in page  # the storage rows
+    row = re.search(r"<td>l2 error against the reference</td><td>(\S+) \+- ", page)
+    err = project.sampling.brdf_errors(CT, compress.load(path),
+                                       project.sampling.peak_resolving_pairs(1 << 15, seed=3))
+    assert row is not None and abs(float(row.group(1)) - err["l2"]) < 0.1 * err["l2"] + 2e-3
