@@ -23,8 +23,8 @@ specular direction), s_d = 1 - (1 - 2 theta_d / pi)^(1/p) (p = 2, ``warp_d="graz
 dense towards grazing; p = 1 linear) and s_phi = phi_d / P with the period P = 2 pi
 (``phi_turn="full"``) or pi ("half", phi_d folded by reciprocity). Each factor is linear in
 its coordinate between its knots (strictly increasing in [0, 1]; theta_h and theta_d
-clamp beyond the first and last knot, the phi_d factor is periodic on [0, 1)). Knots are stored as
-values exact in float16, so rounding the model to any storage type moves no knot.
+clamp beyond the first and last knot, the phi_d factor is periodic on [0, 1)). Knots are
+stored as values exact in float16, so rounding the model to any storage type moves no knot.
 
 **Fitting** (:func:`fit_tucker`). The BRDF is tabulated once on a fine grid
 (:func:`project.tabulated.tabulate`, default 256 x 64 x 128 over the whole turn), each node
@@ -65,6 +65,28 @@ against data that are >= 0; at a pair on the horizon q is 0, as for every finite
 
 **Stored reals**: sum over the angles of m (r + 1) (knots and factor values), plus
 r_h r_d r_phi c_rank (the core) and channels x c_rank (the colour factor).
+
+**Measured** (l2 of q, worst channel, 61,970 peak-resolving pairs of
+:func:`project.sampling.peak_resolving_pairs`, seed 2027, against the RGL-EPFL files read by
+:func:`project.measured.read_rgl`; full turn, default grid; budgets 256 / 512 / 1024 / 2048 /
+4096 / 8192 reals):
+
+====================  =====================================================
+file                  l2 per budget
+====================  =====================================================
+chm_orange (film)     0.186 / 0.133 / 0.095 / 0.059 / 0.042 / 0.034
+vch_golden_yellow     0.072 / 0.055 / 0.036 / 0.025 / 0.018 / 0.015
+cc_nothern_aurora     0.108 / 0.067 / 0.041 / 0.027 / 0.019 / 0.014
+cm_military_green     0.084 / 0.062 / 0.046 / 0.036 / 0.023 / 0.017
+ilm_l3_37_matte       0.077 / 0.059 / 0.048 / 0.035 / 0.026 / 0.020
+colodur_napoli_4f     0.074 / 0.051 / 0.037 / 0.030 / 0.023 / 0.018
+ilm_l3_37_metallic    0.023 / 0.015 / 0.010 / 0.007 / 0.005 / 0.004
+paper_white           0.030 / 0.022 / 0.018 / 0.016 / 0.009 / 0.007
+====================  =====================================================
+
+The fine-grid error (``info["fit_l2"]``) tracks these within about 10 % on the films (it
+cannot see the grid's own interpolation error, nor the clamping of negative values). A
+full-turn factored lobe of rank 8 (3.2 kB at float16) reaches 0.23 on chm_orange.
 
 References
 ----------
