@@ -39,6 +39,7 @@ if TYPE_CHECKING:  # what static tools see; at run time __getattr__ imports thes
     from .reciprocity import Reciprocity, reciprocity
     from .sampling import PairSamples, brdf_errors, peak_resolving_pairs
     from .tabulated import TabulatedBRDF, tabulate
+    from .tucker import TuckerBRDF, fit_tucker
 
 #: public name -> the submodule that defines it (None: the name is that submodule)
 _EXPORTS: dict[str, str | None] = {
@@ -54,6 +55,7 @@ _EXPORTS: dict[str, str | None] = {
     "Reciprocity": "reciprocity", "reciprocity": "reciprocity",
     "PairSamples": "sampling", "brdf_errors": "sampling", "peak_resolving_pairs": "sampling",
     "TabulatedBRDF": "tabulated", "tabulate": "tabulated",
+    "TuckerBRDF": "tucker", "fit_tucker": "tucker",
 }
 
 __all__ = [
@@ -66,10 +68,12 @@ __all__ = [
     "PairSamples",
     "Reciprocity",
     "TabulatedBRDF",
+    "TuckerBRDF",
     "bin_samples",
     "brdf_errors",
     "fit",
     "fit_model",
+    "fit_tucker",
     "measured",
     "models",
     "peak_resolving_pairs",
