@@ -536,7 +536,7 @@ def _sample(rep: object, n_theta: int, n_phi: int) -> NDArray[np.float64]:
     m = wo.shape[0]
     table = np.empty((n_theta, n_theta, n_phi, channels))
     for i in range(n_theta):  # one theta_in at a time bounds the memory of rep.eval
-        wi = np.array([st[i], 0.0, ct[i]])
+        wi = np.broadcast_to(np.array([st[i], 0.0, ct[i]]), wo.shape)
         f = np.asarray(rep.eval(wi, wo), dtype=np.float64)  # type: ignore[attr-defined]
         if f.shape in ((m,), (m, 1)) and channels == 1:
             f = f.reshape(m, 1)

@@ -206,6 +206,19 @@ def test_write_read_cook_torrance(tmp_path, resolution):
     np.testing.assert_allclose(back.eval(wi, wo), want, rtol=2.0**-24 + 1e-12, atol=1e-12)
 
 
+def test_write_coefficient_matrix(tmp_path):
+    # any representation: a one-channel coefficient matrix (eval returns shape (n,))
+    from basis import HemiZernike
+    from project import project
+
+    cm = project(Lambert(0.4), HemiZernike(2))
+    back = read_mbsdf(write_mbsdf(cm, tmp_path / "cm.mbsdf", resolution=(5, 6)))
+    assert back.channels == 1
+    wi, wo = centre_pairs(5, 6, phi_in=0.3)
+    np.testing.assert_allclose(back.eval(wi, wo)[..., 0], cm.eval(wi, wo),
+                               rtol=2.0**-24 + 1e-12, atol=1e-12)
+
+
 def test_write_scalar_and_bytes(tmp_path):
     path = write_mbsdf(Lambert(0.5), tmp_path / "l.mbsdf", resolution=(2, 3))
     data = path.read_bytes()
@@ -342,3 +355,17 @@ def test_table_checks():
         MBSDFBRDF(np.ones((2, 3, 4, 1)))
     with pytest.raises(ValueError, match="finite"):
         MBSDFBRDF(np.full((1, 1, 1, 3), np.nan))
+
+
+def test_example_symmetrized_as_the_sdk_renderers():
+    # prepare_mbsdfs_part (examples/mdl_sdk/shared/example_cuda_shared.h) averages the table
+    # with its transpose in (theta_in, theta_out) before building the texture
+    path = example_file()
+    raw = np.fromfile(path, dtype="<f4", offset=55).reshape(45, 45, 90, 3).astype(np.float64)
+    sym = read_mbsdf(path, symmetrize=True)
+    assert sym.reciprocal and sym.info["symmetrized"]
+    assert np.array_equal(sym.table, raw)   # the stored values are kept as read
+    wi, wo = centre_pairs(45, 90, phi_in=2.0)
+    want = np.maximum(0.5 * (raw + raw.transpose(1, 0, 2, 3)), 0.0)
+    np.testing.assert_allclose(sym.eval(wi, wo), want, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(sym.eval(wo, wi), want, rtol=1e-12, atol=1e-12)
