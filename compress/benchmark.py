@@ -1,12 +1,13 @@
 """How small, and how accurate, measured materials become: the benchmark on real files.
 
 :func:`benchmark_files` runs :func:`compress.select` on every measured file of a folder --
-MERL ``.binary`` tables (Matusik et al. 2003 layout, :func:`project.measured.read_merl`)
-and RGL-EPFL ``.bsdf`` tensor files (Dupuy & Jakob 2018, :func:`project.measured.read_rgl`),
-told apart by their suffix, both kinds in one folder allowed -- one process per material,
+MERL ``.binary`` tables (Matusik et al. 2003 layout, :func:`project.measured.read_merl`),
+RGL-EPFL ``.bsdf`` tensor files (Dupuy & Jakob 2018, :func:`project.measured.read_rgl`) and
+NVIDIA MDL ``.mbsdf`` files (:func:`project.measured.read_mbsdf`), told apart by their
+suffix, all kinds in one folder allowed -- one process per material,
 and writes
 
-- ``materials.csv``: per material its ``format`` ("merl" or "rgl"); for each tolerance the
+- ``materials.csv``: per material its ``format`` ("merl", "rgl" or "mbsdf"); for each tolerance the
   smallest representation that meets it (its family, storage type, bytes, l2 and log
   errors; the most accurate measured one when none does); the reciprocity of the data
   (``reciprocity_residual``, ``reciprocity_floor`` and its standard error: the relative L2
@@ -99,9 +100,9 @@ __all__ = ["FORMATS", "LIGHTS", "PUBLISHED", "benchmark_files", "benchmark_merl"
            "image_error"]
 
 #: Measured file formats the benchmark reads, by suffix.
-FORMATS = {"merl": ".binary", "rgl": ".bsdf"}
+FORMATS = {"merl": ".binary", "rgl": ".bsdf", "mbsdf": ".mbsdf"}
 #: Names of the formats in messages and titles.
-_FORMAT_NAMES = {"merl": "MERL", "rgl": "RGL"}
+_FORMAT_NAMES = {"merl": "MERL", "rgl": "RGL", "mbsdf": "MDL"}
 #: Seed of select's error pairs (its default), with which the reciprocity of a material
 #: that met no tolerance is measured again: the same pairs as select's own measurement.
 _PAIR_SEED = 2027
@@ -123,7 +124,7 @@ def benchmark_merl(folder: str | os.PathLike, out: str | os.PathLike, *,
 
 
 def benchmark_files(folder: str | os.PathLike, out: str | os.PathLike, *,
-                    formats: Iterable[str] = ("merl", "rgl"),
+                    formats: Iterable[str] = tuple(FORMATS),
                     tols: Sequence[float] = (0.05, 0.10), workers: int = 2,
                     materials: Iterable[str] | None = None,
                     candidates: Sequence[dict] | None = None, error_n: int = 1 << 16,
@@ -133,12 +134,12 @@ def benchmark_files(folder: str | os.PathLike, out: str | os.PathLike, *,
     Parameters
     ----------
     folder : path
-        A folder of measured files: MERL ``NAME.binary`` and RGL-EPFL ``NAME.bsdf`` (of the
-        ``formats`` asked for; files with other suffixes are ignored).
+        A folder of measured files: MERL ``NAME.binary``, RGL-EPFL ``NAME.bsdf`` and MDL
+        ``NAME.mbsdf`` (of the ``formats`` asked for; files with other suffixes are ignored).
     out : path
         Output folder (created): the files of the module notes.
     formats : iterable of str
-        Which of :data:`FORMATS` to read (default both).
+        Which of :data:`FORMATS` to read (default all).
     tols : sequence of float
         Tolerances on the l2 error; the representation is selected for the smallest and
         the others are read off the same candidate table (candidates are built in order
@@ -181,7 +182,7 @@ def benchmark_files(folder: str | os.PathLike, out: str | os.PathLike, *,
     if not kinds or not set(kinds) <= set(FORMATS):
         raise ValueError(f"formats must name some of {tuple(FORMATS)}, got {formats!r}")
     suffixes = [FORMATS[k] for k in kinds]
-    what = " and ".join(f"{_FORMAT_NAMES[k]} {FORMATS[k]}" for k in kinds)
+    what = _listed([f"{_FORMAT_NAMES[k]} {FORMATS[k]}" for k in kinds], "and")
     if not folder.is_dir():
         kind = _FORMAT_NAMES[kinds[0]] if len(kinds) == 1 else f"measured ({what})"
         raise NotADirectoryError(f"no folder of {kind} files at {str(folder)!r}")
@@ -202,11 +203,11 @@ def benchmark_files(folder: str | os.PathLike, out: str | os.PathLike, *,
         missing = sorted(set(wanted) - set(names))
         if missing:
             raise FileNotFoundError(
-                f"no {' or '.join(missing[0] + x for x in suffixes)} in {str(folder)!r} "
+                f"no {_listed([missing[0] + x for x in suffixes], 'or')} in {str(folder)!r} "
                 f"(and {len(missing) - 1} more missing)")
         names = wanted
     if not names:
-        raise FileNotFoundError(f"no {' or '.join(suffixes)} files in {str(folder)!r}")
+        raise FileNotFoundError(f"no {_listed(suffixes, 'or')} files in {str(folder)!r}")
     if client is not None:
         dask_client(client, "benchmark_merl" if kinds == ("merl",) else "benchmark_files")
     (out / "materials").mkdir(parents=True, exist_ok=True)
@@ -304,11 +305,12 @@ def _run_one(path: str, out: str, job: dict) -> None:
     strictest tolerance but below a looser one lets the reciprocal forms, about half the
     size, compete at the looser one only); then it runs again at that tolerance.
     """
-    from project.measured import read_merl, read_rgl
+    from project.measured import read_mbsdf, read_merl, read_rgl
 
     p = Path(path)
-    name, kind = p.stem, "rgl" if p.suffix == FORMATS["rgl"] else "merl"
-    brdf = (read_rgl if kind == "rgl" else read_merl)(p)
+    kind = next(k for k, suffix in FORMATS.items() if p.suffix == suffix)
+    name = p.stem
+    brdf = {"merl": read_merl, "rgl": read_rgl, "mbsdf": read_mbsdf}[kind](p)
     tols = job["tols"]
     strict = _select(brdf, tols[0], job)
     runs = {tols[0]: strict}
@@ -482,6 +484,11 @@ def _summary(rows: list[dict], tols: tuple[float, ...]) -> dict[str, Any]:
     out["median_reciprocity_floor"] = _median(r.get("reciprocity_floor") for r in rows)
     out["formats"] = {k: sum(r.get("format", "merl") == k for r in rows) for k in FORMATS}
     return out
+
+
+def _listed(items: Sequence[str], word: str) -> str:
+    """Return 'a', 'a or b', 'a, b or c' (``word`` joins the last two)."""
+    return items[0] if len(items) == 1 else f"{', '.join(items[:-1])} {word} {items[-1]}"
 
 
 def _median(values: Iterable[Any]) -> float | None:

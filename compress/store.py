@@ -277,14 +277,15 @@ def save(obj: Any, path: str | os.PathLike, *, dtype: str = "float64") -> Path:
 
 
 #: What :func:`file_kind` tells apart.
-FILE_KINDS = ("representation", "checkpoint", "rgl", "merl", "measurements")
+FILE_KINDS = ("representation", "checkpoint", "rgl", "mbsdf", "merl", "measurements")
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _TENSOR_MAGIC = b"tensor_file\x00"  # RGL-EPFL .bsdf files (project.measured.rgl)
+_MBSDF_MAGIC = b"NVIDIA ARC MBSDF V1\n"  # NVIDIA MDL .mbsdf files (project.measured.mbsdf)
 _CHECKPOINT = "scatmodes-microgeometry-checkpoint-"  # project.microgeometry's --checkpoint
 
 
 def file_kind(path: str | os.PathLike) -> str:
-    """Tell what a file holds, from its first bytes (and a MERL table's ``.binary`` suffix).
+    """Tell what a file holds, from its first bytes (and the suffixes ``.binary``, ``.mbsdf``).
 
     Parameters
     ----------
@@ -295,7 +296,8 @@ def file_kind(path: str | os.PathLike) -> str:
     str
         One of :data:`FILE_KINDS`: ``"representation"`` (any other HDF5 file: what
         :func:`load` reads, or refuses with its reason), ``"checkpoint"`` (a checkpoint of
-        ``project.microgeometry.simulate``), ``"rgl"`` (an RGL-EPFL tensor file), ``"merl"``
+        ``project.microgeometry.simulate``), ``"rgl"`` (an RGL-EPFL tensor file), ``"mbsdf"``
+        (an NVIDIA MDL measured BSDF: its magic line or the ``.mbsdf`` suffix), ``"merl"``
         (a ``.binary`` file) or ``"measurements"`` (anything else: a text table for
         :func:`project.measured.read_measurements`). Only the kind is told; the readers
         check the content.
@@ -311,7 +313,10 @@ def file_kind(path: str | os.PathLike) -> str:
     if p.is_dir():
         raise IsADirectoryError(f"the path must be a file, got the directory {str(p)!r}")
     with open(p, "rb") as fh:
-        head = fh.read(len(_TENSOR_MAGIC))
+        head = fh.read(len(_MBSDF_MAGIC))
+    if head == _MBSDF_MAGIC or p.suffix.lower() == ".mbsdf":
+        return "mbsdf"
+    head = head[:len(_TENSOR_MAGIC)]
     if head[:len(_HDF5_SIGNATURE)] == _HDF5_SIGNATURE:
         try:
             with h5py.File(p, "r") as f:

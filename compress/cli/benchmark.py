@@ -1,4 +1,4 @@
-"""``scatmodes benchmark [merl|rgl] DIR``: compress.select over a folder of measured files."""
+"""``scatmodes benchmark [merl|rgl|mbsdf] DIR``: compress.select over a folder of measured files."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type,
                add_progress: Callable[[argparse.ArgumentParser], None],
                wants_progress: Callable[[argparse.Namespace], bool],
                dask_client: Callable[[argparse.Namespace], Any]) -> None:
-    """Register ``benchmark`` (targets ``merl``, ``rgl``, or none: both) on the subcommand parser.
+    """Register ``benchmark`` (targets ``merl``, ``rgl``, ``mbsdf``, or none: all) on ``sub``.
 
     ``add_progress`` adds the command line's ``--progress`` flag, ``wants_progress`` reads
     it, ``dask_client`` opens the Dask client of ``--scheduler`` (the conventions of
@@ -24,11 +24,12 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type,
     """
     b = sub.add_parser(
         "benchmark", formatter_class=fmt,
-        help="the smallest representation of every measured material (MERL, RGL) within "
+        help="the smallest representation of every measured material (MERL, RGL, MDL) within "
              "a tolerance",
-        description="Runs compress.select on every measured file of DIR -- MERL .binary "
-                    "and RGL-EPFL .bsdf files, told apart by their suffix (merl or rgl: "
-                    "only those) -- one process per material, and writes OUT/materials.csv "
+        description="Runs compress.select on every measured file of DIR -- MERL .binary, "
+                    "RGL-EPFL .bsdf and NVIDIA MDL .mbsdf files, told apart by their suffix "
+                    "(merl, rgl or mbsdf: only those) -- one process per material, and "
+                    "writes OUT/materials.csv "
                     "(per material: the reciprocity residual and floor of the data and the "
                     "forms select let compete, the smallest error reached, the time of "
                     "select, and for each tolerance: family, storage type, bytes, l2 and "
@@ -40,9 +41,10 @@ def add_parser(sub: argparse._SubParsersAction, fmt: type,
         epilog="examples:\n  scatmodes benchmark merl merl-folder --out bench --workers 2\n"
                "  scatmodes benchmark merl merl-folder --materials blue-acrylic,gold-paint\n"
                "  scatmodes benchmark rgl rgl-folder --tols 0.10,0.05\n"
-               "  scatmodes benchmark measured-folder   # .binary and .bsdf files")
-    b.add_argument("target", nargs="?", choices=("merl", "rgl"), default=None,
-                   help="only MERL .binary or only RGL .bsdf files (default: both)")
+               "  scatmodes benchmark measured-folder   # .binary, .bsdf and .mbsdf files")
+    b.add_argument("target", nargs="?", choices=("merl", "rgl", "mbsdf"), default=None,
+                   help="only MERL .binary, only RGL .bsdf or only MDL .mbsdf files (default: "
+                        "all)")
     b.add_argument("folder", metavar="DIR", help="folder of measured files")
     b.add_argument("--out", default="scatmodes-benchmark", metavar="OUT",
                    help="output folder, created if missing (default %(default)s)")

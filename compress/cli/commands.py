@@ -1,11 +1,11 @@
 """The ``scatmodes`` command line.
 
 Commands: ``demo`` (no data files needed), ``project`` (an analytic model or a MERL file),
-``convert`` (a MERL ``.binary`` or RGL ``.bsdf`` file projected to HDF5; a measurement file is
-fitted as by ``fit``), ``fit`` (a measurement file: our table, CSV or Cornell ``.brdf``; a
-coefficient matrix, or a compact model with ``--model``), ``simulate`` (the microgeometry
-simulator), ``study`` (error and speed against order) and ``info``. Every command has
-``--help`` with examples.
+``convert`` (a MERL ``.binary``, RGL ``.bsdf`` or MDL ``.mbsdf`` file projected to HDF5; a
+measurement file is fitted as by ``fit``), ``fit`` (a measurement file: our table, CSV or
+Cornell ``.brdf``; a coefficient matrix, or a compact model with ``--model``), ``simulate``
+(the microgeometry simulator), ``study`` (error and speed against order) and ``info``. Every
+command has ``--help`` with examples.
 
 A problem with the input (unknown model, bad parameter, missing or unreadable file,
 unwritable output, bad order, ...) prints exactly one line ``scatmodes <command>: error:
@@ -210,6 +210,9 @@ def _input_file(path: str, name: str) -> Path:
         raise UserError(f"{name} file {path!r} does not exist")
     if p.is_dir():
         raise UserError(f"{name} must be a file, got the directory {path!r}")
+    if not p.is_file():  # a FIFO or device would block or never end when read
+        raise UserError(f"{name} file {path!r} must be a regular file (not a pipe or device); "
+                        "copy it to a file first")
     if not os.access(p, os.R_OK):
         raise UserError(f"{name} file {path!r} is not readable")
     return p
@@ -394,15 +397,23 @@ def _write_projection(brdf: Any, args: argparse.Namespace, out: Path, quantity: 
 _HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
 _TENSOR_MAGIC = b"tensor_file\x00"  # RGL-EPFL .bsdf files (project.measured.rgl)
 _MERL_HEADER = struct.pack("<3i", 90, 90, 180)  # project.measured.MERL_SHAPE[1:], int32
+_MBSDF_MAGIC = b"NVIDIA ARC MBSDF V1\n"  # NVIDIA MDL .mbsdf files (project.measured.mbsdf)
 
 
 def _file_kind(path: Path) -> str:
-    """Return "hdf5", "rgl", "merl" or "measurements" (any other file) by content and suffix."""
+    """Return "hdf5", "rgl", "mbsdf", "merl" or "measurements" (any other file).
+
+    By content and suffix; a damaged file with a known suffix goes to its reader, which says
+    what is wrong.
+    """
     with open(path, "rb") as fh:
-        head = fh.read(len(_TENSOR_MAGIC))
+        head = fh.read(len(_MBSDF_MAGIC))
     suffix = path.suffix.lower()
     if head.startswith(_HDF5_SIGNATURE):
         return "hdf5"
+    if head == _MBSDF_MAGIC or suffix == ".mbsdf":
+        return "mbsdf"
+    head = head[:len(_TENSOR_MAGIC)]
     if head == _TENSOR_MAGIC or suffix == ".bsdf":
         return "rgl"
     if suffix == ".binary" or head.startswith(_MERL_HEADER):
@@ -417,7 +428,7 @@ _CONVERT_TOL, _CONVERT_METHOD = 1e-3, "quadrature"
 def _convert(args: argparse.Namespace) -> int:
     out = _hdf5_output(args.output)
     suffix = Path(args.file).suffix.lower()
-    label = {".binary": "--merl", ".bsdf": "RGL"}.get(suffix, "measurement")
+    label = {".binary": "--merl", ".bsdf": "RGL", ".mbsdf": "MBSDF"}.get(suffix, "measurement")
     p = _input_file(args.file, label)
     kind = _file_kind(p)
     if kind == "merl":  # exactly 'scatmodes project --merl FILE'
@@ -434,9 +445,16 @@ def _convert(args: argparse.Namespace) -> int:
         # f cos(theta_o)): as "f" it is not square integrable and the projection crawls
         quantity = "f_cos" if args.quantity == "auto" else args.quantity
         return _write_projection(brdf, args, out, quantity, args.tol)
+    if kind == "mbsdf":
+        from project.measured import read_mbsdf
+
+        # f is bounded at grazing angles; f_cos is the projection's default quantity
+        brdf = read_mbsdf(p)
+        quantity = "f_cos" if args.quantity == "auto" else args.quantity
+        return _write_projection(brdf, args, out, quantity, args.tol)
     # scattered measurements: a least-squares fit, as 'scatmodes fit FILE' with its defaults
     if args.tol != _CONVERT_TOL or args.method != _CONVERT_METHOD:
-        raise UserError(f"--tol and --method apply to projecting a MERL or RGL file; "
+        raise UserError(f"--tol and --method apply to projecting a MERL, RGL or MBSDF file; "
                         f"{args.file!r} holds measurements, which convert fits as 'scatmodes "
                         "fit' does (drop them; 'scatmodes fit --help' lists the fit's options)")
     fit_args = argparse.Namespace(
@@ -446,7 +464,8 @@ def _convert(args: argparse.Namespace) -> int:
         reciprocal=True, regularization="auto", penalty=None, modal_defaults={},
         note="measurements: fitted by least squares as 'scatmodes fit' does (its options: "
              "'scatmodes fit --help')",
-        not_text="is neither a MERL .binary, an RGL .bsdf nor a measurement text file",
+        not_text="is neither a MERL .binary, an RGL .bsdf, an MDL .mbsdf nor a measurement "
+                 "text file",
         **dict.fromkeys(_MODEL_OPTIONS))
     return _fit(fit_args)
 
@@ -518,8 +537,9 @@ def _read_measurements(path: str, label: str, fmt: str = "auto", angles: str | N
 
     p = _input_file(path, label)
     kind = _file_kind(p)
-    if kind in ("rgl", "merl"):
-        what = "an RGL-EPFL .bsdf" if kind == "rgl" else "a MERL .binary"
+    if kind in ("rgl", "merl", "mbsdf"):
+        what = {"rgl": "an RGL-EPFL .bsdf", "merl": "a MERL .binary",
+                "mbsdf": "an NVIDIA MDL .mbsdf"}[kind]
         raise UserError(f"{label} {path!r} is {what} file, a BRDF that can be evaluated "
                         f"anywhere rather than scattered measurements: project it with "
                         f"'scatmodes convert {path} -o OUT.h5'")
@@ -963,7 +983,8 @@ def _parser() -> argparse.ArgumentParser:
 
     c = sub.add_parser(
         "convert", formatter_class=fmt,
-        help="convert a MERL .binary, an RGL .bsdf or a measurement file to coefficients",
+        help="convert a MERL .binary, an RGL .bsdf, an MDL .mbsdf or a measurement file to "
+             "coefficients",
         description="Turns a measured material into a coefficient matrix (HDF5, "
                     "compress.save),\nchoosing by the file's content and suffix:\n"
                     "  MERL .binary  read_merl (trilinear interpolation), projected exactly "
@@ -974,6 +995,9 @@ def _parser() -> argparse.ArgumentParser:
                     "is f_cos, "
                     "since the stored f grows\n                like 1/cos(theta_o) at grazing "
                     "angles\n"
+                    "  MDL .mbsdf    read_mbsdf (NVIDIA MDL measured BSDF, reflection part, "
+                    "the MDL\n                SDK's texel-centre lookup), projected the same "
+                    "way (not\n                reciprocal); --quantity auto is f_cos\n"
                     "  anything else scattered measurements (a table, CSV or Cornell .brdf, "
                     "see\n                'scatmodes fit --help'): fitted by least squares "
                     "as 'scatmodes fit\n                FILE' does with its defaults "
@@ -984,14 +1008,16 @@ def _parser() -> argparse.ArgumentParser:
                "  scatmodes convert paper_white_rgb.bsdf --order 8 -o paper.h5\n"
                "  scatmodes convert cayman.brdf --order 6 -o cayman.h5")
     c.add_argument("file", metavar="FILE",
-                   help="a MERL .binary, an RGL .bsdf or a measurement text file")
+                   help="a MERL .binary, an RGL .bsdf, an MDL .mbsdf or a measurement text "
+                        "file")
     _add_basis(c)
     c.add_argument("--tol", type=_positive, default=_CONVERT_TOL,
-                   help="quadrature tolerance of the projection, MERL and RGL (default "
+                   help="quadrature tolerance of the projection, MERL, RGL and MBSDF "
+                        "(default "
                         "%(default)s)")
     c.add_argument("--method", choices=("quadrature", "montecarlo", "lstsq"),
                    default=_CONVERT_METHOD,
-                   help="projection method, MERL and RGL (default %(default)s)")
+                   help="projection method, MERL, RGL and MBSDF (default %(default)s)")
     c.add_argument("-o", "--output", required=True, metavar="OUT.h5", help="HDF5 file to write")
     c.set_defaults(func=_convert)
 

@@ -4,7 +4,8 @@
 :func:`run` prints one of them. Measurement files (a text table, CSV or a Cornell ``.brdf``
 file, see :func:`project.measured.read_measurements`) are described by
 :meth:`project.Measurements.describe`, RGL-EPFL ``.bsdf`` files by the header of
-:func:`project.measured.read_rgl`. A representation (a file of :func:`compress.save`: a
+:func:`project.measured.read_rgl`, NVIDIA MDL ``.mbsdf`` files by
+:func:`project.measured.read_mbsdf`. A representation (a file of :func:`compress.save`: a
 coefficient matrix, a fitted model or a hybrid) is read in full with :func:`compress.load`,
 so every check of :mod:`compress.store` applies and a damaged file is reported, not
 described. A checkpoint of :func:`project.microgeometry.simulate` (``--checkpoint``) is
@@ -57,7 +58,7 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
     -------
     dict
         JSON-able. Always ``path``, ``kind`` (``"representation"``, ``"checkpoint"``,
-        ``"measurements"`` or ``"rgl"``) and
+        ``"measurements"``, ``"rgl"`` or ``"mbsdf"``) and
         ``bytes_on_disk``. A representation adds ``content`` (``"coefficients"``, ``"model"``
         or ``"hybrid"``), ``schema_version``, ``library``, ``dtype``, ``stored_bytes`` (the
         numbers held, at the stored precision) and the description of the object: for a
@@ -74,7 +75,10 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         :meth:`project.Measurements.describe` (its ``info`` holds the format and how it was
         detected); an RGL ``.bsdf`` file kind ``"rgl"``, with ``name``, ``description``,
         ``channels``, ``channel_names``, ``wavelengths_nm``, ``isotropic``, ``jacobian``,
-        ``reduction``, ``theta_i_nodes`` and ``phi_i_nodes``. Both measurement kinds add
+        ``reduction``, ``theta_i_nodes`` and ``phi_i_nodes``; an MDL ``.mbsdf`` file kind
+        ``"mbsdf"``, with ``name``, ``channels``, ``resolution`` ([n_theta, n_phi]),
+        ``negative_count``, ``min_value``, ``transmission`` (its resolution or null) and
+        ``metadata`` (its lines). The measurement kinds add
         ``reciprocity``: :meth:`project.Reciprocity.describe` of :func:`project.reciprocity`
         without its ``source`` (``residual``, ``floor``, their ``*_stderr``, ``matched``,
         ``tol_deg``, ``bands``, ``channels``, ``samples``, ``note``; NaN as null), on
@@ -94,6 +98,8 @@ def describe(path: str | os.PathLike) -> dict[str, Any]:
         return {**base, "kind": kind, **_header(p), **_object(obj)}
     if kind == "rgl":
         return {**base, "kind": kind, **_rgl(p)}
+    if kind == "mbsdf":
+        return {**base, "kind": kind, **_mbsdf(p)}
     # a MERL .binary is described as the measurement table it is not: the reader says so
     return {**base, "kind": "measurements", **_measurements(p)}
 
@@ -141,6 +147,20 @@ def _rgl(p: Path) -> dict[str, Any]:
         "theta_i_nodes": int(np.size(fields.get("theta_i", ()))),
         "phi_i_nodes": int(np.size(fields.get("phi_i", ()))),
         "reciprocity": _reciprocity(brdf),
+    })
+
+
+def _mbsdf(p: Path) -> dict[str, Any]:
+    from project.measured import read_mbsdf
+
+    brdf = read_mbsdf(p)
+    info = brdf.info
+    return _plain({
+        "name": brdf.name, "channels": int(brdf.channels),
+        "resolution": list(info["resolution"]), "negative_count": info["negative_count"],
+        "min_value": info["min_value"],
+        "transmission": None if info["transmission"] is None else list(info["transmission"]),
+        "metadata": list(brdf.metadata), "reciprocity": _reciprocity(brdf),
     })
 
 
@@ -280,6 +300,21 @@ def to_text(d: dict[str, Any]) -> str:
                  f"no (azimuthal reduction {d['reduction']})"),
                 ("incidence nodes", f"{d['theta_i_nodes']} theta_i x {d['phi_i_nodes']} phi_i"),
                 ("jacobian", "yes" if d["jacobian"] else "no"),
+                *_reciprocity_rows(d["reciprocity"])]
+        return "\n".join(lines + _rows(rows))
+    if d["kind"] == "mbsdf":
+        n_theta, n_phi = d["resolution"]
+        tr = d["transmission"]
+        lines.append(f"{d['path']}: NVIDIA MDL measured BSDF (.mbsdf), "
+                     f"{d['bytes_on_disk']:,} bytes on disk")
+        rows = [("name", d["name"]),
+                ("channels", f"{d['channels']} ({'RGB' if d['channels'] == 3 else 'scalar'})"),
+                ("grid", f"{n_theta} theta_in x {n_theta} theta_out x {n_phi} delta_phi"),
+                ("negative values", f"{d['negative_count']:,} (min {d['min_value']:.3g}; "
+                                    "evaluated as 0)"),
+                ("transmission", "none" if tr is None else
+                 f"{tr[0]} x {tr[0]} x {tr[1]} (kept, not evaluated)"),
+                ("metadata", _short(" | ".join(d["metadata"])) if d["metadata"] else "none"),
                 *_reciprocity_rows(d["reciprocity"])]
         return "\n".join(lines + _rows(rows))
     if d["kind"] == "checkpoint":

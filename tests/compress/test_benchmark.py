@@ -138,7 +138,7 @@ def test_rgl_and_merl_in_one_folder(mixed_run):
     again = project.reciprocity(read_rgl(PAPER), n=4096, seed=2027)
     assert paper["reciprocity_floor"] == pytest.approx(again.floor, rel=1e-12)
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["formats"] == {"merl": 1, "rgl": 1}
+    assert summary["formats"] == {"merl": 1, "rgl": 1, "mbsdf": 0}
     assert summary["median_reciprocity_floor"] == pytest.approx(
         paper["reciprocity_floor"] / 2, rel=1e-12)
     assert summary["median_select_seconds"] > 0 and summary["median_image_error"] >= 0
@@ -186,16 +186,18 @@ def test_foreign_and_clashing_files(measured, tmp_path):
 
 
 def test_bad_arguments_files(measured, tmp_path):
-    with pytest.raises(FileNotFoundError, match=r"no \.binary or \.bsdf files"):
+    with pytest.raises(FileNotFoundError, match=r"no \.binary, \.bsdf or \.mbsdf files"):
         benchmark_files(tmp_path, tmp_path / "o")
     with pytest.raises(FileNotFoundError, match=r"no \.bsdf files"):
         benchmark_files(tmp_path, tmp_path / "o", formats=("rgl",))
-    with pytest.raises(FileNotFoundError, match="no velvet.binary or velvet.bsdf"):
+    with pytest.raises(FileNotFoundError,
+                       match="no velvet.binary, velvet.bsdf or velvet.mbsdf"):
         benchmark_files(measured, tmp_path / "o", materials=["velvet"])
-    with pytest.raises(NotADirectoryError, match=r"no folder of measured \(MERL \.binary "
-                                                 r"and RGL \.bsdf\) files"):
+    with pytest.raises(NotADirectoryError, match=r"no folder of measured \(MERL \.binary, "
+                                                 r"RGL \.bsdf and MDL \.mbsdf\) files"):
         benchmark_files(tmp_path / "nowhere", tmp_path / "o")
-    with pytest.raises(ValueError, match=r"formats must name some of \('merl', 'rgl'\), "
+    with pytest.raises(ValueError, match=r"formats must name some of \('merl', 'rgl', "
+                                         r"'mbsdf'\), "
                                          "got 'tiff'"):
         benchmark_files(measured, tmp_path / "o", formats="tiff")
     with pytest.raises(ValueError, match="formats must name some of"):
@@ -223,7 +225,7 @@ def test_command_line_rgl(measured, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
     assert main(["benchmark", str(empty), "--out", str(out)]) == 2
-    assert "no .binary or .bsdf files" in capsys.readouterr().err
+    assert "no .binary, .bsdf or .mbsdf files" in capsys.readouterr().err
 
 
 def _csv(path):
@@ -286,3 +288,19 @@ def test_command_line_bad_scheduler(folder, tmp_path, capsys):
     assert main(["benchmark", "merl", str(folder), "--out", str(tmp_path / "o"),
                  "--scheduler", "tcp://127.0.0.1:9"]) == 2
     assert "--scheduler 'tcp://127.0.0.1:9': cannot connect" in capsys.readouterr().err
+
+
+def test_mbsdf_folder(tmp_path):
+    """An MDL .mbsdf file of a Lambertian BRDF: constant at every texel centre, so the
+    SDK's lookup is that constant everywhere and the order-2 expansion is exact."""
+    from project.measured import write_mbsdf
+
+    d = tmp_path / "mdl"
+    d.mkdir()
+    write_mbsdf(Lambert([0.2, 0.4, 0.6]), d / "matte.mbsdf", resolution=(6, 12))
+    rows = benchmark_files(d, tmp_path / "o", formats=("mbsdf",), tols=(0.05,), workers=1,
+                           candidates=CANDS, error_n=4096)
+    (row,) = rows
+    assert row["material"] == "matte" and row["format"] == "mbsdf"
+    # float32 storage of 0.6 / pi: relative rounding 3e-8
+    assert row["meets_0.05"] and row["l2_0.05"] < 1e-3

@@ -1,6 +1,7 @@
 """The scatmodes command line: every command on small inputs, --help everywhere, and one-line
 errors (status 2, no traceback) for each class of user error."""
 
+import os
 import re
 import subprocess
 import sys
@@ -11,7 +12,7 @@ import pytest
 
 from compress import load
 from compress.cli import main
-from project.measured import write_merl
+from project.measured import write_mbsdf, write_merl
 from project.models import Lambert
 
 PHONG = ["Phong", "--param", "kd=0.3", "--param", "ks=0.4", "--param", "n=20"]
@@ -765,6 +766,27 @@ def test_convert_rgl(tmp_path, capsys):
     np.testing.assert_allclose(cm.albedo([0.0, 0.0, 1.0]), albedo, rtol=0, atol=0.015)
 
 
+def test_convert_mbsdf(tmp_path, capsys):
+    # a constant table: the MDL SDK's lookup returns 0.3 / pi everywhere, albedo 0.3
+    path = write_mbsdf(Lambert(0.3), tmp_path / "grey.mbsdf", resolution=(6, 12))
+    status, out, err = run(capsys, "convert", str(path), "--order", "2", "-o",
+                           str(tmp_path / "grey.h5"))
+    assert status == 0 and err == "", err
+    assert out.startswith(f"wrote {tmp_path / 'grey.h5'}: MBSDFBRDF(name='grey'")
+    cm = load(tmp_path / "grey.h5")
+    assert cm.quantity == "f_cos" and cm.channels == 1
+    # f cos cos of a Lambert BRDF is in every hemisphere basis of order >= 1; the projection's
+    # quadrature tolerance is 1e-3 (--tol default)
+    np.testing.assert_allclose(cm.albedo([0.0, 0.0, 1.0]), 0.3, rtol=0, atol=1e-3)
+
+
+def test_mbsdf_fifo_does_not_block(tmp_path, capsys):
+    fifo = tmp_path / "pipe.mbsdf"
+    os.mkfifo(fifo)
+    line = one_line_error(capsys, "convert", str(fifo), "-o", str(tmp_path / "x.h5"))
+    assert "must be a regular file" in line
+
+
 def test_convert_measurements_is_the_fit(tmp_path, capsys, ggx_samples):
     path = write(tmp_path, ggx_samples, "cornell")
     status, out, err = run(capsys, "convert", str(path), "--order", "2", "-o",
@@ -824,13 +846,19 @@ def test_convert_measurements_is_the_fit(tmp_path, capsys, ggx_samples):
     (["convert", "{tmp}/none.csv"], "measurement file '{tmp}/none.csv' does not exist"),
     (["convert", "{tmp}/bad.bsdf"], "RGL file '{tmp}/bad.bsdf': the required field"),
     (["convert", "{tmp}/scan.png"], "FILE '{tmp}/scan.png' is neither a MERL .binary, an RGL "
-                                    ".bsdf nor a measurement text file: it holds the byte 0x89"),
+                                    ".bsdf, an MDL .mbsdf nor a measurement text file: it holds "
+                                    "the byte 0x89"),
+    (["convert", "{tmp}/bad.mbsdf"], "MBSDF file '{tmp}/bad.mbsdf' must start with the line "
+                                     "'NVIDIA ARC MBSDF V1'"),
+    (["convert", "{tmp}/none.mbsdf"], "MBSDF file '{tmp}/none.mbsdf' does not exist"),
+    (["fit", "{tmp}/bad.mbsdf"], "TABLE '{tmp}/bad.mbsdf' is an NVIDIA MDL .mbsdf file, a BRDF "
+                                 "that can be evaluated anywhere"),
     (["convert", "{tmp}/foreign.csv"], "FILE '{tmp}/foreign.csv': line 1: the header must "
                                        "name the angle columns"),
     (["convert", "{tmp}/saved.h5"], "FILE '{tmp}/saved.h5' is an HDF5 file, not a BRDF or "
                                     "measurements to convert"),
     (["convert", "{tmp}/ggx.csv", "--tol", "1e-4"],
-     "--tol and --method apply to projecting a MERL or RGL file"),
+     "--tol and --method apply to projecting a MERL, RGL or MBSDF file"),
 ])
 def test_measurement_file_errors(tmp_path, capsys, ggx_samples, argv, match):
     for fmt in ("csv", "table", "cornell"):
@@ -840,6 +868,7 @@ def test_measurement_file_errors(tmp_path, capsys, ggx_samples, argv, match):
     (tmp_path / "saved.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + bytes(64))
     (tmp_path / "bad.bsdf").write_bytes(b"tensor_file\x00\x01\x00" + bytes(4))
     (tmp_path / "scan.png").write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))
+    (tmp_path / "bad.mbsdf").write_bytes(b"NVIDIA ARC MBSDF V2\n")
     argv = [a.format(tmp=tmp_path, bsdf=BSDF) for a in argv]
     line = one_line_error(capsys, *argv, "-o", str(tmp_path / "x.h5"))
     assert match.format(tmp=tmp_path, bsdf=BSDF) in line

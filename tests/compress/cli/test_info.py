@@ -343,3 +343,30 @@ def test_measurement_reciprocity_not_estimated(tmp_path, capsys):
                           "of channel 'v': the relative residual is undefined"}
     status, out, _ = run(capsys, "info", str(path))
     assert status == 0 and rows(out)["reciprocity"].startswith("not estimated: measurements")
+
+
+def test_mbsdf_file(tmp_path, capsys):
+    from project.measured import write_mbsdf
+    from project.models import CookTorrance
+
+    path = write_mbsdf(CookTorrance(kd=[0.2, 0.3, 0.4], roughness=0.4), tmp_path / "ct.mbsdf",
+                       resolution=(8, 16))
+    d = described(capsys, path)
+    assert d["kind"] == "mbsdf" and d["name"] == "ct" and d["channels"] == 3
+    assert d["resolution"] == [8, 16] and d["negative_count"] == 0
+    assert d["transmission"] is None and d["metadata"] == []
+    assert d["bytes_on_disk"] == 20 + 23 + 12 + 4 * 3 * 8 * 8 * 16
+    assert d["reciprocity"]["residual"] < 0.05   # a reciprocal model, sampled on a grid
+    status, out, _ = run(capsys, "info", str(path))
+    assert status == 0
+    assert out.startswith(f"{path}: NVIDIA MDL measured BSDF (.mbsdf)")
+    r = rows(out)
+    assert r["grid"] == "8 theta_in x 8 theta_out x 16 delta_phi"
+    assert r["channels"] == "3 (RGB)" and r["transmission"] == "none"
+
+
+def test_damaged_mbsdf(tmp_path, capsys):
+    path = tmp_path / "cut.mbsdf"
+    path.write_bytes(b"NVIDIA ARC MBSDF V1\nMBSDF_DATA=\n" + bytes(6))
+    line = one_line_error(capsys, "info", str(path))
+    assert f"MBSDF file {str(path)!r} ends inside the header of its reflection part" in line
