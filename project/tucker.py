@@ -534,14 +534,6 @@ def _greedy_knots(s: NDArray, guide: NDArray, w: NDArray, periodic: bool,
     ``residual[m, a]``: weighted squared residual of guide a fitted with the first m knots
     (rows below the first count are inf).
     """
-    # a hundred small solves: a second BLAS thread only adds hand-offs (12 ms instead of
-    # 1 ms a solve while another process held the other core)
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _greedy(s, guide, w, periodic, most)
-
-
-def _greedy(s: NDArray, guide: NDArray, w: NDArray, periodic: bool,
-            most: int) -> tuple[NDArray[np.intp], NDArray[np.float64]]:
     n = s.size
     chosen = list(np.linspace(0, n, 4, endpoint=False).astype(int)) if periodic else [0, n - 1]
     residual = np.full((most + 1, guide.shape[1]), np.inf)
@@ -735,6 +727,16 @@ def fit_tucker(brdf: Any, *, budget: int | None = 2048,
     phi_turn = choice(phi_turn, "phi_turn", tuple(PHI_TURNS))
     if (ranks is None) != (knots is None):
         raise ValueError("give ranks and knots together (or neither, and a budget)")
+    # many small and medium products: on a shared machine (and under select's worker
+    # processes) a second BLAS thread per process costs far more than it gains (the SVDs of
+    # a 16,384-real fit of a glossy film: 5.2 s on two threads, 0.24 s on one, while another
+    # process held a core)
+    with threadpool_limits(limits=1, user_api="blas"):
+        return _fit(brdf, budget, ranks, knots, color_rank, grid, warp_d, phi_turn)
+
+
+def _fit(brdf: Any, budget: int | None, ranks: Any, knots: Any, color_rank: int | None,
+         grid: tuple[int, int, int], warp_d: str, phi_turn: str) -> TuckerBRDF:
     made: list[_Prepared] = []
 
     def prepare() -> _Prepared:
