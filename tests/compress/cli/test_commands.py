@@ -336,6 +336,20 @@ def test_damaged_files(tmp_path, capsys):
     assert "line 2: theta_o must lie in [0, 90] degrees, got 95" in line
 
 
+@pytest.mark.parametrize("command", ["fit", "convert"])
+@pytest.mark.parametrize("text, match", [
+    ("inf 0 45 0 0.5\n", "line 1, column 1: cell must be finite, got 'inf'"),
+    ("1e999 0 45 0 0.5\n", "line 1, column 1: cell must be finite, got '1e999'"),
+    ("30 0 45 0 1_5\n", "line 1, column 5: cell must be a number, got '1_5' (ASCII digits "
+                        "only, no '_' between them)"),
+], ids=["inf", "1e999", "underscore"])
+def test_measurement_numbers(tmp_path, capsys, command, text, match):
+    table = tmp_path / "t.txt"
+    table.write_text(text)
+    line = one_line_error(capsys, command, str(table), "-o", str(tmp_path / "x.h5"))
+    assert str(table) in line and match in line
+
+
 @pytest.mark.parametrize("out, match", [
     ("{tmp}/missing/x.h5", "cannot write -o '{tmp}/missing/x.h5': directory '{tmp}/missing' "
                            "does not exist"),

@@ -261,6 +261,29 @@ def test_damaged_measurements(tmp_path, capsys):
     assert "line 15: the wavelength count 3 (line 5) does not fit the body" in line
 
 
+@pytest.mark.parametrize("text, match", [
+    ("inf 0 45 0 0.5\n", "line 1, column 1: cell must be finite, got 'inf'"),
+    ("1e999\n", "line 1: a row must have 5 columns"),
+    ("30 0 45 0 1_5\n", "line 1, column 5: cell must be a number, got '1_5' (ASCII digits "
+                        "only, no '_' between them)"),
+    ("30 0 45 0 \u0661\n", "line 1, column 5: cell must be a number, got '\u0661' (ASCII "
+                             "digits only"),
+], ids=["inf", "1e999-alone", "underscore", "arabic-indic"])
+def test_measurement_numbers(tmp_path, capsys, text, match):
+    # inf once raised OverflowError in format detection: a traceback and status 1
+    path = tmp_path / "t.txt"
+    path.write_text(text, encoding="utf-8")
+    line = one_line_error(capsys, "info", str(path))
+    assert f"{str(path)!r}" in line and match in line
+
+
+def test_measurements_with_a_byte_order_mark(tmp_path, capsys):
+    path = tmp_path / "t.txt"
+    path.write_bytes(b"\xef\xbb\xbf30 0 45 180 0.5\n30 0 60 0 0.25\n")
+    d = described(capsys, path)
+    assert d["info"]["format"] == "table" and d["samples"] == 2
+
+
 def test_rgl_file(tmp_path, capsys):
     rgl = pytest.importorskip("project.measured.rgl")
     f32 = np.float32
