@@ -35,7 +35,7 @@ from threadpoolctl import threadpool_limits
 from basis import QUANTITIES, Basis, CoefficientMatrix, from_angles
 from basis.validation import as_directions, check_bytes, choice, nonneg_int
 
-from ._reading import number
+from ._reading import number, regular_file
 from .measurements import FOLDS as _FOLDS
 from .measurements import Measurements, pair_groups
 
@@ -1263,10 +1263,12 @@ def read_table(path: str | PathLike) -> tuple[NDArray, NDArray, NDArray]:
     ------
     ValueError
         Naming the line, for a wrong number of columns, a cell that is not a number, a
-        non-finite cell, or theta outside [0, 90]; or if the file holds no data.
+        non-finite cell, or theta outside [0, 90]; or if the file holds no data, or is not
+        a regular file (a FIFO, a device).
     """
     rows: list[list[float]] = []
     ncol = None
+    regular_file(path, "table file")  # a FIFO would block open()
     with open(path, encoding="utf-8-sig") as fh:  # a byte-order mark is not a cell
         for lineno, raw in enumerate(fh, start=1):
             line = raw.split("#", 1)[0].strip()

@@ -775,7 +775,8 @@ def read_rgl(path: str | os.PathLike) -> RGLBRDF:
         The path does not exist or is a directory.
     ValueError
         Not a tensor file, truncated or damaged, or a field missing, of the wrong type or
-        shape, or not finite; the message names the file and the field.
+        shape, or not finite; the message names the file and the field. Also for a path
+        that is not a regular file (a FIFO, a device).
 
     Examples
     --------

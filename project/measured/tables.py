@@ -53,7 +53,8 @@ the OBJ reader of :mod:`project.microgeometry`). A UTF-8 byte-order mark is skip
 every format.
 
 **Errors** name the file, the line and, for a cell, the column (1-based); missing files
-raise FileNotFoundError, directories IsADirectoryError.
+raise FileNotFoundError, directories IsADirectoryError, and a FIFO or a device (which
+could block the reader forever) ValueError.
 
 **Writing** uses ``repr`` of each float (the shortest string that reads back to the same
 double), so values, weights and wavelengths read back bit for bit, and the angles written
@@ -174,7 +175,7 @@ def read_measurements(path: str | os.PathLike, format: str | None = None, *,
         is not a number (in ASCII digits), NaN or inf, theta outside [0, 90] degrees /
         [0, pi/2], missing or repeated angle columns, no value column, a Cornell wavelength
         count that does not fit the numbers that follow, a unit stated in contradiction,
-        an empty file.
+        an empty file; or a path that is not a regular file (a FIFO, a device).
 
     Examples
     --------

@@ -350,6 +350,16 @@ def test_measurement_numbers(tmp_path, capsys, command, text, match):
     assert str(table) in line and match in line
 
 
+@pytest.mark.parametrize("command, name", [("fit", "pipe.txt"), ("convert", "pipe.txt"),
+                                           ("convert", "pipe.bsdf"),
+                                           ("convert", "pipe.binary")])
+def test_fifo(tmp_path, capsys, on_fifo, command, name):
+    # the command opened the file to tell its kind: blocked forever
+    line = on_fifo(lambda p: one_line_error(capsys, command, str(p), "-o",
+                                            str(tmp_path / "x.h5")), name)
+    assert f"{name}' must be a regular file, got a FIFO, a device or a socket" in line
+
+
 @pytest.mark.parametrize("out, match", [
     ("{tmp}/missing/x.h5", "cannot write -o '{tmp}/missing/x.h5': directory '{tmp}/missing' "
                            "does not exist"),

@@ -16,6 +16,7 @@ import basis
 from basis import CoefficientMatrix
 from compress import Hybrid, save
 from compress.cli import main
+from compress.store import file_kind, load
 from project import FittedModel
 
 
@@ -197,6 +198,20 @@ def test_console_exit_status(tmp_path):
     assert r.returncode == 2 and r.stdout == ""
     assert r.stderr.strip() == (f"scatmodes info: error: file {str(tmp_path / 'x.h5')!r} does "
                                 "not exist")
+
+
+@pytest.mark.parametrize("name", ["pipe.txt", "pipe.bsdf", "pipe.binary", "pipe.h5"])
+def test_fifo(on_fifo, capsys, name):
+    # compress.store.file_kind opened the file to read its first bytes: blocked forever
+    line = on_fifo(lambda p: one_line_error(capsys, "info", str(p)), name)
+    assert f"{name}' must be a regular file, got a FIFO (named pipe)" in line
+
+
+@pytest.mark.parametrize("reader", [file_kind, load])
+def test_fifo_refused_by_the_store(on_fifo, reader):
+    with pytest.raises(ValueError, match=r"file '.*pipe.h5' must be a regular file, got a "
+                                         r"FIFO \(named pipe\)"):
+        on_fifo(reader, "pipe.h5")
 
 
 # ------------------------------------------------------------------------ measurement files

@@ -359,6 +359,14 @@ def test_bad_paths(tmp_path):
         RGLBRDF([1, 2])
 
 
+@pytest.mark.parametrize("reader, what", [(read_rgl, "RGL"), (read_tensor_file, "tensor")])
+def test_fifo_refused(on_fifo, reader, what):
+    # opening a FIFO blocks until a writer appears: refused before it is opened
+    with pytest.raises(ValueError, match=f"{what} file '.*pipe.bsdf' must be a regular file, "
+                                         r"got a FIFO \(named pipe\)"):
+        on_fifo(reader, "pipe.bsdf")
+
+
 def _replace(fields: dict, **kw) -> dict:
     out = dict(fields)
     for k, v in kw.items():

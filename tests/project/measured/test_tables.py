@@ -329,6 +329,15 @@ def test_bad_paths_and_options(tmp_path, cornell_file):
         read_measurements(p)
 
 
+@pytest.mark.parametrize("reader, what", [(read_measurements, "measurement"),
+                                          (read_table, "table")])
+def test_fifo_refused(on_fifo, reader, what):
+    # opening a FIFO blocks until a writer appears: refused before it is opened
+    with pytest.raises(ValueError, match=f"{what} file '.*pipe.txt' must be a regular file, "
+                                         r"got a FIFO \(named pipe\)"):
+        on_fifo(reader, "pipe.txt")
+
+
 # ------------------------------------------------------------------------------ round trips
 @pytest.fixture
 def spectral_set(rng):
