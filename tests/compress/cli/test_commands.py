@@ -2,6 +2,7 @@
 errors (status 2, no traceback) for each class of user error."""
 
 import re
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -348,6 +349,18 @@ def test_measurement_numbers(tmp_path, capsys, command, text, match):
     table.write_text(text)
     line = one_line_error(capsys, command, str(table), "-o", str(tmp_path / "x.h5"))
     assert str(table) in line and match in line
+
+
+@pytest.mark.parametrize("offsets, match", [((64, 68), "fields 'a' and 'b' overlap"),
+                                            ((66, 76), "multiple of its item size 4")])
+def test_convert_damaged_rgl_header(tmp_path, capsys, offsets, match):
+    head = b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", 2)
+    for name, offset in zip("ab", offsets, strict=True):
+        head += struct.pack("<H", 1) + name.encode() + struct.pack("<HBQQ", 1, 10, offset, 2)
+    bad = tmp_path / "bad.bsdf"
+    bad.write_bytes(head + bytes(88 - len(head)))
+    line = one_line_error(capsys, "convert", str(bad), "-o", str(tmp_path / "x.h5"))
+    assert f"tensor file {str(bad)!r}: " in line and match in line
 
 
 @pytest.mark.parametrize("command, name", [("fit", "pipe.txt"), ("convert", "pipe.txt"),

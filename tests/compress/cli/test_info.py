@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 import subprocess
 import sys
 
@@ -316,6 +317,30 @@ def test_rgl_file(tmp_path, capsys):
     status, out, _ = run(capsys, "info", str(path))
     assert "RGL-EPFL measured BRDF" in out.splitlines()[0]
     assert rows(out)["incidence nodes"] == "2 theta_i x 1 phi_i"
+
+
+def _container(fields, size):
+    """Tensor-file bytes whose headers say anything: fields of (name, code, offset, shape)."""
+    head = b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", len(fields))
+    for name, code, offset, shape in fields:
+        head += struct.pack("<H", len(name)) + name.encode()
+        head += struct.pack(f"<HBQ{len(shape)}Q", len(shape), code, offset, *shape)
+    return head + bytes(size - len(head))
+
+
+@pytest.mark.parametrize("fields, size, match", [
+    ([("a", 10, 1024, (2**40, 2**40, 0))], 1028, "field 'a' has shape (1099511627776, "
+                                                 "1099511627776, 0), which numpy cannot hold"),
+    ([("a", 1, 1024, (1,) * 65)], 1028, "which numpy cannot hold"),
+    ([("a", 10, 64, (2,)), ("b", 10, 68, (2,))], 80, "fields 'a' and 'b' overlap"),
+    ([("a", 10, 66, (2,))], 80, "must start at an offset that is a multiple of its item size "
+                                "4, got offset 66"),
+], ids=["huge", "65-dims", "overlap", "misaligned"])
+def test_damaged_rgl_header(tmp_path, capsys, fields, size, match):
+    path = tmp_path / "bad.bsdf"
+    path.write_bytes(_container(fields, size))
+    line = one_line_error(capsys, "info", str(path))
+    assert f"tensor file {str(path)!r}: " in line and match in line
 
 
 # ------------------------------------------------------------------------------ reciprocity
