@@ -52,7 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from basis.jit import loopjit, njit, run_parallel
 
-from .._reading import NUMBER
+from .._reading import NUMBER, regular_file
 from ._paths import _ESCAPED, _HIT, _LOST, _grid_step
 
 __all__ = ["BVH", "Mesh"]
@@ -182,11 +182,13 @@ class Mesh:
             refers to a vertex the file does not define, a keyword glued to its number
             (``v1.0 2 3``) or in the wrong letter case (``V 1 2 3``), a file cut off in
             the middle of a record, no ``f`` line at all,
-            or degenerate triangles.
+            or degenerate triangles; or a path that is not a regular file (a FIFO, a
+            device).
         OSError
             If the file cannot be read.
         """
         name = os.fspath(path)
+        regular_file(path, "OBJ file")  # a FIFO would block open()
         with open(path, "rb") as fh:
             data = fh.read()
         if data.startswith(codecs.BOM_UTF8):
