@@ -141,6 +141,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import stat
 import warnings
 from collections.abc import Mapping
 from pathlib import Path
@@ -306,12 +307,15 @@ def file_kind(path: str | os.PathLike) -> str:
     ------
     FileNotFoundError, IsADirectoryError
         The file is missing, or is a folder.
+    ValueError
+        It is not a regular file (a FIFO, a device), which could block a reader forever.
     """
     p = Path(os.fspath(path))
     if not p.exists():
         raise FileNotFoundError(f"file {str(p)!r} does not exist")
     if p.is_dir():
         raise IsADirectoryError(f"the path must be a file, got the directory {str(p)!r}")
+    _regular_file(p)
     with open(p, "rb") as fh:
         head = fh.read(len(_MBSDF_MAGIC))
     if head == _MBSDF_MAGIC or p.suffix.lower() == ".mbsdf":
@@ -329,6 +333,15 @@ def file_kind(path: str | os.PathLike) -> str:
     if head == _TENSOR_MAGIC:
         return "rgl"
     return "merl" if p.suffix.lower() == ".binary" else "measurements"
+
+
+def _regular_file(p: Path) -> None:
+    """Refuse a FIFO, a device or a socket before opening it (opening a FIFO blocks)."""
+    mode = p.stat().st_mode
+    if not stat.S_ISREG(mode):
+        kind = "a FIFO (named pipe)" if stat.S_ISFIFO(mode) else "a device or a socket"
+        raise ValueError(f"file {str(p)!r} must be a regular file, got {kind}: give the "
+                         "path of a file on disk")
 
 
 def load(path: str | os.PathLike) -> Any:
@@ -363,6 +376,7 @@ def load(path: str | os.PathLike) -> Any:
         raise FileNotFoundError(f"file {name} does not exist")
     if p.is_dir():
         raise IsADirectoryError(f"path must be a file, got the directory {name}")
+    _regular_file(p)
     with open(p, "rb") as fh:
         head = fh.read(8)
     if head != _HDF5_SIGNATURE:

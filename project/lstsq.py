@@ -35,6 +35,7 @@ from threadpoolctl import threadpool_limits
 from basis import QUANTITIES, Basis, CoefficientMatrix, from_angles
 from basis.validation import as_directions, check_bytes, choice, nonneg_int
 
+from ._reading import number, regular_file
 from .measurements import FOLDS as _FOLDS
 from .measurements import Measurements, pair_groups
 
@@ -1249,7 +1250,8 @@ def read_table(path: str | PathLike) -> tuple[NDArray, NDArray, NDArray]:
         Text with one measurement per line: theta_i, phi_i, theta_o, phi_o in DEGREES, then
         one value column or three (RGB), in 1/sr. Cells are separated by commas or by
         whitespace (not both in one line); '#' starts a comment; blank lines are skipped.
-        theta must lie in [0, 90]; phi is any finite angle.
+        theta must lie in [0, 90]; phi is any finite angle. Numbers are written in ASCII
+        digits (no ``_`` separators); UTF-8, with or without a byte-order mark.
 
     Returns
     -------
@@ -1261,11 +1263,13 @@ def read_table(path: str | PathLike) -> tuple[NDArray, NDArray, NDArray]:
     ------
     ValueError
         Naming the line, for a wrong number of columns, a cell that is not a number, a
-        non-finite cell, or theta outside [0, 90]; or if the file holds no data.
+        non-finite cell, or theta outside [0, 90]; or if the file holds no data, or is not
+        a regular file (a FIFO, a device).
     """
     rows: list[list[float]] = []
     ncol = None
-    with open(path, encoding="utf-8") as fh:
+    regular_file(path, "table file")  # a FIFO would block open()
+    with open(path, encoding="utf-8-sig") as fh:  # a byte-order mark is not a cell
         for lineno, raw in enumerate(fh, start=1):
             line = raw.split("#", 1)[0].strip()
             if not line:
@@ -1284,10 +1288,10 @@ def read_table(path: str | PathLike) -> tuple[NDArray, NDArray, NDArray]:
             row = []
             for j, cell in enumerate(cells):
                 try:
-                    x = float(cell)
-                except ValueError:
-                    raise ValueError(f"line {lineno}, column {j + 1}: cell must be a number, got "
-                                     f"{cell!r} (comment out header lines with '#')") from None
+                    x = number(cell)  # float() would also read "1_5" and non-ASCII digits
+                except ValueError as exc:
+                    raise ValueError(f"line {lineno}, column {j + 1}: cell {exc} (comment out "
+                                     "header lines with '#')") from None
                 if not np.isfinite(x):
                     raise ValueError(f"line {lineno}, column {j + 1}: cell must be finite, got "
                                      f"{cell!r}")

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import threading
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -61,3 +65,42 @@ def unit_vectors(rng: np.random.Generator) -> Callable[..., np.ndarray]:
         return random_directions(rng, shape, upper=upper)
 
     return make
+
+
+@pytest.fixture
+def on_fifo(tmp_path: Path) -> Callable[..., Any]:
+    """``on_fifo(reader, name="pipe")``: ``reader(path)`` on a new FIFO, in a thread.
+
+    Returns what the reader returns and raises what it raises. A reader that opens the FIFO
+    blocks until a writer appears: after 10 s the write end is opened and closed to release
+    it (the reader then sees an empty file), and the test fails instead of hanging.
+    """
+    if not hasattr(os, "mkfifo"):
+        pytest.skip("no FIFOs on this platform")
+
+    def call(reader: Callable[[Path], Any], name: str = "pipe") -> Any:
+        path = tmp_path / name
+        os.mkfifo(path)
+        out: dict[str, Any] = {}
+
+        def target() -> None:
+            try:
+                out["value"] = reader(path)
+            except BaseException as exc:  # noqa: BLE001 - raised again in the test's thread
+                out["error"] = exc
+
+        thread = threading.Thread(target=target, daemon=True)
+        thread.start()
+        thread.join(10.0)
+        if thread.is_alive():
+            try:
+                os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+            except OSError:  # no reader has it open: the reader is stuck elsewhere
+                pass
+            thread.join(10.0)
+            pytest.fail(f"{getattr(reader, '__name__', reader)} blocked on the FIFO {path}")
+        if "error" in out:
+            raise out["error"]
+        return out["value"]
+
+    return call

@@ -210,9 +210,9 @@ def _input_file(path: str, name: str) -> Path:
         raise UserError(f"{name} file {path!r} does not exist")
     if p.is_dir():
         raise UserError(f"{name} must be a file, got the directory {path!r}")
-    if not p.is_file():  # a FIFO or device would block or never end when read
-        raise UserError(f"{name} file {path!r} must be a regular file (not a pipe or device); "
-                        "copy it to a file first")
+    if not p.is_file():  # a FIFO or a device: opening it could block forever
+        raise UserError(f"{name} {path!r} must be a regular file, got a FIFO, a device or a "
+                        "socket; copy it to a file first")
     if not os.access(p, os.R_OK):
         raise UserError(f"{name} file {path!r} is not readable")
     return p

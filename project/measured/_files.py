@@ -5,6 +5,8 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+from .._reading import regular_file
+
 
 def as_path(path: object, name: str = "path") -> Path:
     """Return ``path`` as a Path; TypeError for anything that is not str or os.PathLike."""
@@ -16,13 +18,17 @@ def as_path(path: object, name: str = "path") -> Path:
 
 
 def input_file(path: object, kind: str, what: str | None = None) -> Path:
-    """Return the path of an existing file of ``kind`` (e.g. "MERL"), or raise naming it."""
+    """Return the path of an existing file of ``kind`` (e.g. "MERL"), or raise naming it.
+
+    ValueError for a FIFO, a device or a socket: opening one could block forever.
+    """
     p = as_path(path)
     if not p.exists():
         raise FileNotFoundError(f"{kind} file {str(p)!r} does not exist")
     if p.is_dir():
         raise IsADirectoryError(f"path must be {what or f'a {kind} file'}, got the directory "
                                 f"{str(p)!r}")
+    regular_file(p, f"{kind} file")
     return p
 
 

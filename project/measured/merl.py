@@ -421,7 +421,8 @@ def read_merl(path: str | os.PathLike, *, interpolation: str = "trilinear") -> M
         The path does not exist or is a directory.
     ValueError
         The file is shorter or longer than its header promises, the header is not
-        (90, 90, 180), or a value is NaN or inf.
+        (90, 90, 180), or a value is NaN or inf; or the path is not a regular file (a
+        FIFO, a device).
 
     Examples
     --------

@@ -21,6 +21,20 @@ This reader checks what the reference loader does not: every field lies inside t
 after the header, sizes are computed without overflow, names are unique UTF-8, and every
 field the model uses has the expected type, shape and finite values.
 
+**Alignment and overlap.** Neither loader checks either. The reference loader (``Tensor``
+in ``powitacq*.inl``) ``fread``\ s each field from its offset into a buffer of its own, so
+any offset works there and two fields may share bytes. Mitsuba 3's ``TensorFile``
+memory-maps the file and points each field at ``data() + offset``; the ``measured`` plugin
+then reads the arrays through ``float *`` casts, which C++ leaves undefined for an offset
+that is not a multiple of 4 (it happens to work on x86, and traps on strict-alignment
+processors). The format's writers (Mitsuba's ``tensor_io.write``, :func:`write_tensor_file`)
+align every field to 8 bytes and give each its own bytes, and so do all published files.
+This reader therefore refuses a field whose offset is not a multiple of its item size, and
+fields whose bytes overlap (fields of 0 bytes overlap nothing): both come from a damaged
+header, and reading on would give a BRDF made of some other field's numbers. A field whose
+shape numpy cannot hold (more dimensions than numpy allows, sizes past its index range even
+when another size is 0) is refused too.
+
 **Fields of a material.** ``description`` (uint8 text), ``theta_i`` and ``phi_i`` (float32
 incidence angles of the measured slices, radians), ``ndf`` and ``sigma`` (float32 2-D
 tables of the microfacet distribution D and the projected area sigma(w_i) = int D(m)
@@ -167,7 +181,9 @@ def read_tensor_file(path: str | os.PathLike) -> dict[str, NDArray]:
     ValueError
         The file is not a tensor file (magic, version), is truncated, or a field header is
         damaged: unknown type code, a name that is not UTF-8 or repeats, data outside the
-        file. The message names the file and the field.
+        file, an offset that is not a multiple of the item size, fields that overlap, a
+        shape numpy cannot hold. The message names the file and the field. Also for a path
+        that is not a regular file (a FIFO, a device).
 
     Examples
     --------
@@ -227,15 +243,41 @@ def read_tensor_file(path: str | os.PathLike) -> dict[str, NDArray]:
             raise ValueError(f"{where}: {field} appears twice")
         specs.append((name, np.dtype(_DTYPES[code]), tuple(int(s) for s in shape), offset))
     fields: dict[str, NDArray] = {}
+    spans: list[tuple[int, int, str]] = []  # (start, end, name) of the fields holding bytes
     for name, dtype, shape, offset in specs:
         nbytes = dtype.itemsize * math.prod(shape)  # Python ints: no overflow
         if offset < pos or offset + nbytes > size:
-            raise ValueError(f"{where}: field {name!r} ({dtype}, shape {shape}, {nbytes} "
-                             f"bytes at offset {offset}) must lie between the end of the "
-                             f"header ({pos}) and the end of the file ({size}); the file is "
-                             "truncated or damaged")
-        fields[name] = np.frombuffer(data, dtype, math.prod(shape), offset).reshape(shape)
+            raise ValueError(f"{where}: field {name!r} ({dtype}, shape {_shown(shape)}, "
+                             f"{nbytes} bytes at offset {offset}) must lie between the end of "
+                             f"the header ({pos}) and the end of the file ({size}); the file "
+                             "is truncated or damaged")
+        if offset % dtype.itemsize:
+            raise ValueError(f"{where}: field {name!r} ({dtype}) must start at an offset that "
+                             f"is a multiple of its item size {dtype.itemsize}, got offset "
+                             f"{offset}; the header is damaged (see the module notes)")
+        try:
+            fields[name] = np.frombuffer(data, dtype, math.prod(shape), offset).reshape(shape)
+        except (ValueError, OverflowError):  # too many dimensions, or sizes too large
+            raise ValueError(f"{where}: field {name!r} has shape {_shown(shape)}, which "
+                             f"numpy cannot hold (too many dimensions, or sizes whose product "
+                             f"without the zeros passes 2**63); the header is damaged") \
+                from None
+        if nbytes:
+            spans.append((offset, offset + nbytes, name))
+    spans.sort()  # an overlap shows between neighbours in the order of the offsets
+    for (_, end, first), (start, end2, second) in zip(spans, spans[1:], strict=False):
+        if start < end:
+            raise ValueError(f"{where}: fields {first!r} and {second!r} overlap (bytes "
+                             f"{start} to {min(end, end2) - 1} belong to both); each field "
+                             "must have bytes of its own: the header is damaged")
     return fields
+
+
+def _shown(shape: tuple[int, ...]) -> str:
+    """Return a shape for a message: in full up to 8 dimensions, else the first 4 and ndim."""
+    if len(shape) <= 8:
+        return str(shape)
+    return f"({', '.join(map(str, shape[:4]))}, ... {len(shape)} dimensions)"
 
 
 def write_tensor_file(path: str | os.PathLike, fields: Mapping[str, ArrayLike]) -> Path:
@@ -733,7 +775,8 @@ def read_rgl(path: str | os.PathLike) -> RGLBRDF:
         The path does not exist or is a directory.
     ValueError
         Not a tensor file, truncated or damaged, or a field missing, of the wrong type or
-        shape, or not finite; the message names the file and the field.
+        shape, or not finite; the message names the file and the field. Also for a path
+        that is not a regular file (a FIFO, a device).
 
     Examples
     --------

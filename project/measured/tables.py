@@ -47,8 +47,14 @@ degrees, signed (both sides of the plane of incidence); values 0 to 30 (acryl_bl
 none is the reciprocal of another, even up to isotropy (no theta_o equals a theta_i).
 Angles are printed with 6 decimals, so theta_i = 80 degrees reads 79.999977 degrees.
 
+**Numbers** are read as C's ``strtod`` reads them, in ASCII digits: Python's ``float``
+would also take ``1_5`` (as 15) and other scripts' digits, which are refused here (as by
+the OBJ reader of :mod:`project.microgeometry`). A UTF-8 byte-order mark is skipped in
+every format.
+
 **Errors** name the file, the line and, for a cell, the column (1-based); missing files
-raise FileNotFoundError, directories IsADirectoryError.
+raise FileNotFoundError, directories IsADirectoryError, and a FIFO or a device (which
+could block the reader forever) ValueError.
 
 **Writing** uses ``repr`` of each float (the shortest string that reads back to the same
 double), so values, weights and wavelengths read back bit for bit, and the angles written
@@ -71,6 +77,7 @@ from numpy.typing import NDArray
 from basis import from_angles
 from basis.validation import choice
 
+from .._reading import number
 from ..io import atomic_path
 from ..lstsq import read_table
 from ..measurements import Measurements
@@ -94,7 +101,8 @@ _UNIT_WORDS = {"deg": "degrees", "degs": "degrees", "degree": "degrees", "degree
                "rad": "radians", "rads": "radians", "radian": "radians", "radians": "radians"}
 _UNIT = re.compile(r"^(?P<base>.+?)[\s_-]*(?:[\[(]\s*(?P<u1>[a-z]+)\s*[\])]|[\s_-](?P<u2>"
                    + "|".join(_UNIT_WORDS) + r"))$")
-_WAVELENGTH = re.compile(r"^(?:(?:wl|lambda|wavelength)[\s_-]*)?(\d+(?:\.\d*)?)\s*(?:nm)?$")
+_WAVELENGTH = re.compile(r"^(?:(?:wl|lambda|wavelength)[\s_-]*)?(\d+(?:\.\d*)?)\s*(?:nm)?$",
+                         re.ASCII)
 _CORNELL_LABELS = re.compile(r"^(num\s+wls|wls|theta\s+i\b.*)$", re.IGNORECASE)
 _COLUMNS = ("theta_i", "phi_i", "theta_o", "phi_o")
 
@@ -124,9 +132,9 @@ class _Text:
 
 def _number(text: _Text, cell: str, line: int, column: int) -> float:
     try:
-        x = float(cell)
-    except ValueError:
-        raise text.error(line, f"cell must be a number, got {cell!r}", column) from None
+        x = number(cell)  # float() would also read "1_5" as 15, and non-ASCII digits
+    except ValueError as exc:
+        raise text.error(line, f"cell {exc}", column) from None
     if not math.isfinite(x):
         raise text.error(line, f"cell must be finite, got {cell!r}", column)
     return x
@@ -164,9 +172,10 @@ def read_measurements(path: str | os.PathLike, format: str | None = None, *,
         The path does not exist or is a directory.
     ValueError
         Naming the file, line and column: text that is not UTF-8, a ragged row, a cell that
-        is not a number, NaN or inf, theta outside [0, 90] degrees / [0, pi/2], missing or
-        repeated angle columns, no value column, a Cornell wavelength count that does not
-        fit the numbers that follow, a unit stated in contradiction, an empty file.
+        is not a number (in ASCII digits), NaN or inf, theta outside [0, 90] degrees /
+        [0, pi/2], missing or repeated angle columns, no value column, a Cornell wavelength
+        count that does not fit the numbers that follow, a unit stated in contradiction,
+        an empty file; or a path that is not a regular file (a FIFO, a device).
 
     Examples
     --------
@@ -245,6 +254,8 @@ def _detect(text: _Text) -> tuple[str, str]:
         where = f"extension {suffix} and content" if suffix == ".brdf" else "content"
         return "cornell", f"by {where}: a wavelength count alone on its first line"
     cells = re.split(r"[\s,;]+", first.strip(", ;"))
+    # float() only tells a header from a data row here: a cell it reads ("1_5") is data,
+    # which the table reader then refuses naming the line and column
     for c in cells:
         try:
             float(c)
@@ -260,7 +271,7 @@ def _cornell_header(data: list[tuple[int, str]]) -> bool:
         w = float(first[0])
     except ValueError:
         return False
-    if not (w >= 1 and w == int(w) and w < 1e6):
+    if not (1 <= w < 1e6 and w == int(w)):  # int(inf) would raise OverflowError
         return False
     if len(first) == 1:
         return True

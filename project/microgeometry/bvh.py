@@ -52,6 +52,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from basis.jit import loopjit, njit, run_parallel
 
+from .._reading import NUMBER, regular_file
 from ._paths import _ESCAPED, _HIT, _LOST, _grid_step
 
 __all__ = ["BVH", "Mesh"]
@@ -80,9 +81,9 @@ _OBJ_INDEX = re.compile(r"[+-]?[0-9]+")
 #: a v or f keyword glued to its first number ("v1.0"): a damaged record, not a new keyword
 _OBJ_GLUED = re.compile(r"[vf][-+.0-9]")
 #: a number as C's strtod reads it in an OBJ file: ASCII digits only (Python's float would
-#: also take "1_0" and other scripts' digits); inf and nan are read, then refused as such
-_OBJ_NUMBER = re.compile(r"[+-]?(?:(?:[0-9]+\.?[0-9]*|\.[0-9]+)(?:[eE][+-]?[0-9]+)?"
-                         r"|inf|infinity|nan)", re.ASCII | re.IGNORECASE)
+#: also take "1_0" and other scripts' digits); inf and nan are read, then refused as such.
+#: The measurement tables read numbers with the same pattern.
+_OBJ_NUMBER = NUMBER
 #: the keywords of the OBJ format (Wavefront, Appendix B1); they are case-sensitive, so a
 #: line starting with one of them in other letter case is damage, not an unknown keyword
 _OBJ_KEYWORDS = frozenset(
@@ -181,11 +182,13 @@ class Mesh:
             refers to a vertex the file does not define, a keyword glued to its number
             (``v1.0 2 3``) or in the wrong letter case (``V 1 2 3``), a file cut off in
             the middle of a record, no ``f`` line at all,
-            or degenerate triangles.
+            or degenerate triangles; or a path that is not a regular file (a FIFO, a
+            device).
         OSError
             If the file cannot be read.
         """
         name = os.fspath(path)
+        regular_file(path, "OBJ file")  # a FIFO would block open()
         with open(path, "rb") as fh:
             data = fh.read()
         if data.startswith(codecs.BOM_UTF8):

@@ -3,6 +3,7 @@ errors (status 2, no traceback) for each class of user error."""
 
 import os
 import re
+import struct
 import subprocess
 import sys
 from pathlib import Path
@@ -335,6 +336,42 @@ def test_damaged_files(tmp_path, capsys):
     table.write_text("10 0 20 0 0.1\n10 0 95 0 0.1\n")
     line = one_line_error(capsys, "fit", str(table), "-o", str(tmp_path / "x.h5"))
     assert "line 2: theta_o must lie in [0, 90] degrees, got 95" in line
+
+
+@pytest.mark.parametrize("command", ["fit", "convert"])
+@pytest.mark.parametrize("text, match", [
+    ("inf 0 45 0 0.5\n", "line 1, column 1: cell must be finite, got 'inf'"),
+    ("1e999 0 45 0 0.5\n", "line 1, column 1: cell must be finite, got '1e999'"),
+    ("30 0 45 0 1_5\n", "line 1, column 5: cell must be a number, got '1_5' (ASCII digits "
+                        "only, no '_' between them)"),
+], ids=["inf", "1e999", "underscore"])
+def test_measurement_numbers(tmp_path, capsys, command, text, match):
+    table = tmp_path / "t.txt"
+    table.write_text(text)
+    line = one_line_error(capsys, command, str(table), "-o", str(tmp_path / "x.h5"))
+    assert str(table) in line and match in line
+
+
+@pytest.mark.parametrize("offsets, match", [((64, 68), "fields 'a' and 'b' overlap"),
+                                            ((66, 76), "multiple of its item size 4")])
+def test_convert_damaged_rgl_header(tmp_path, capsys, offsets, match):
+    head = b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", 2)
+    for name, offset in zip("ab", offsets, strict=True):
+        head += struct.pack("<H", 1) + name.encode() + struct.pack("<HBQQ", 1, 10, offset, 2)
+    bad = tmp_path / "bad.bsdf"
+    bad.write_bytes(head + bytes(88 - len(head)))
+    line = one_line_error(capsys, "convert", str(bad), "-o", str(tmp_path / "x.h5"))
+    assert f"tensor file {str(bad)!r}: " in line and match in line
+
+
+@pytest.mark.parametrize("command, name", [("fit", "pipe.txt"), ("convert", "pipe.txt"),
+                                           ("convert", "pipe.bsdf"),
+                                           ("convert", "pipe.binary")])
+def test_fifo(tmp_path, capsys, on_fifo, command, name):
+    # the command opened the file to tell its kind: blocked forever
+    line = on_fifo(lambda p: one_line_error(capsys, command, str(p), "-o",
+                                            str(tmp_path / "x.h5")), name)
+    assert f"{name}' must be a regular file, got a FIFO, a device or a socket" in line
 
 
 @pytest.mark.parametrize("out, match", [

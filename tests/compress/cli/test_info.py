@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import struct
 import subprocess
 import sys
 
@@ -16,6 +17,7 @@ import basis
 from basis import CoefficientMatrix
 from compress import Hybrid, save
 from compress.cli import main
+from compress.store import file_kind, load
 from project import FittedModel
 
 
@@ -199,6 +201,20 @@ def test_console_exit_status(tmp_path):
                                 "not exist")
 
 
+@pytest.mark.parametrize("name", ["pipe.txt", "pipe.bsdf", "pipe.binary", "pipe.h5"])
+def test_fifo(on_fifo, capsys, name):
+    # compress.store.file_kind opened the file to read its first bytes: blocked forever
+    line = on_fifo(lambda p: one_line_error(capsys, "info", str(p)), name)
+    assert f"{name}' must be a regular file, got a FIFO (named pipe)" in line
+
+
+@pytest.mark.parametrize("reader", [file_kind, load])
+def test_fifo_refused_by_the_store(on_fifo, reader):
+    with pytest.raises(ValueError, match=r"file '.*pipe.h5' must be a regular file, got a "
+                                         r"FIFO \(named pipe\)"):
+        on_fifo(reader, "pipe.h5")
+
+
 # ------------------------------------------------------------------------ measurement files
 CORNELL = """# Cornell University, Program of Computer Graphics
 # Test Lacquer
@@ -261,6 +277,29 @@ def test_damaged_measurements(tmp_path, capsys):
     assert "line 15: the wavelength count 3 (line 5) does not fit the body" in line
 
 
+@pytest.mark.parametrize("text, match", [
+    ("inf 0 45 0 0.5\n", "line 1, column 1: cell must be finite, got 'inf'"),
+    ("1e999\n", "line 1: a row must have 5 columns"),
+    ("30 0 45 0 1_5\n", "line 1, column 5: cell must be a number, got '1_5' (ASCII digits "
+                        "only, no '_' between them)"),
+    ("30 0 45 0 \u0661\n", "line 1, column 5: cell must be a number, got '\u0661' (ASCII "
+                             "digits only"),
+], ids=["inf", "1e999-alone", "underscore", "arabic-indic"])
+def test_measurement_numbers(tmp_path, capsys, text, match):
+    # inf once raised OverflowError in format detection: a traceback and status 1
+    path = tmp_path / "t.txt"
+    path.write_text(text, encoding="utf-8")
+    line = one_line_error(capsys, "info", str(path))
+    assert f"{str(path)!r}" in line and match in line
+
+
+def test_measurements_with_a_byte_order_mark(tmp_path, capsys):
+    path = tmp_path / "t.txt"
+    path.write_bytes(b"\xef\xbb\xbf30 0 45 180 0.5\n30 0 60 0 0.25\n")
+    d = described(capsys, path)
+    assert d["info"]["format"] == "table" and d["samples"] == 2
+
+
 def test_rgl_file(tmp_path, capsys):
     rgl = pytest.importorskip("project.measured.rgl")
     f32 = np.float32
@@ -278,6 +317,30 @@ def test_rgl_file(tmp_path, capsys):
     status, out, _ = run(capsys, "info", str(path))
     assert "RGL-EPFL measured BRDF" in out.splitlines()[0]
     assert rows(out)["incidence nodes"] == "2 theta_i x 1 phi_i"
+
+
+def _container(fields, size):
+    """Tensor-file bytes whose headers say anything: fields of (name, code, offset, shape)."""
+    head = b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", len(fields))
+    for name, code, offset, shape in fields:
+        head += struct.pack("<H", len(name)) + name.encode()
+        head += struct.pack(f"<HBQ{len(shape)}Q", len(shape), code, offset, *shape)
+    return head + bytes(size - len(head))
+
+
+@pytest.mark.parametrize("fields, size, match", [
+    ([("a", 10, 1024, (2**40, 2**40, 0))], 1028, "field 'a' has shape (1099511627776, "
+                                                 "1099511627776, 0), which numpy cannot hold"),
+    ([("a", 1, 1024, (1,) * 65)], 1028, "which numpy cannot hold"),
+    ([("a", 10, 64, (2,)), ("b", 10, 68, (2,))], 80, "fields 'a' and 'b' overlap"),
+    ([("a", 10, 66, (2,))], 80, "must start at an offset that is a multiple of its item size "
+                                "4, got offset 66"),
+], ids=["huge", "65-dims", "overlap", "misaligned"])
+def test_damaged_rgl_header(tmp_path, capsys, fields, size, match):
+    path = tmp_path / "bad.bsdf"
+    path.write_bytes(_container(fields, size))
+    line = one_line_error(capsys, "info", str(path))
+    assert f"tensor file {str(path)!r}: " in line and match in line
 
 
 # ------------------------------------------------------------------------------ reciprocity

@@ -515,6 +515,13 @@ def test_bad_paths(tmp_path):
         read_merl(None)
 
 
+def test_fifo_refused(on_fifo):
+    # opening a FIFO blocks until a writer appears: refused before it is opened
+    with pytest.raises(ValueError, match=r"MERL file '.*pipe.binary' must be a regular file, "
+                                         r"got a FIFO \(named pipe\)"):
+        on_fifo(read_merl, "pipe.binary")
+
+
 @pytest.mark.parametrize("table, kwargs, match", [
     (np.zeros((3, 90, 90)), {}, r"table must have shape \(3, 90, 90, 180\)"),
     (np.full(MERL_SHAPE, -0.5), {}, "table must be >= 0 .* min -0.5"),

@@ -165,7 +165,7 @@ def test_reads_hand_made_file(tmp_path):
     fields["scalar"] = np.array(7.5)
     fields["empty"] = np.zeros((0, 4), "<f4")
     path = tmp_path / "t.bsdf"
-    path.write_bytes(tensor_bytes(fields, align=1))  # unaligned data is legal too
+    path.write_bytes(tensor_bytes(fields))  # misaligned data is refused: test_misaligned_field
     got = read_tensor_file(path)
     assert list(got) == list(fields)
     for k, v in fields.items():
@@ -359,6 +359,14 @@ def test_bad_paths(tmp_path):
         RGLBRDF([1, 2])
 
 
+@pytest.mark.parametrize("reader, what", [(read_rgl, "RGL"), (read_tensor_file, "tensor")])
+def test_fifo_refused(on_fifo, reader, what):
+    # opening a FIFO blocks until a writer appears: refused before it is opened
+    with pytest.raises(ValueError, match=f"{what} file '.*pipe.bsdf' must be a regular file, "
+                                         r"got a FIFO \(named pipe\)"):
+        on_fifo(reader, "pipe.bsdf")
+
+
 def _replace(fields: dict, **kw) -> dict:
     out = dict(fields)
     for k, v in kw.items():
@@ -458,6 +466,72 @@ def test_unknown_type_and_bad_names(tmp_path, good):
     data[data.index(b"vndf"):data.index(b"vndf") + 4] = b"sigm"
     path.write_bytes(bytes(data))
     with pytest.raises(ValueError, match="field 'sigm' appears twice|required field"):
+        read_rgl(path)
+
+
+def raw_container(fields: list[tuple[str, int, int, tuple]], size: int) -> bytes:
+    """A tensor file of ``size`` bytes whose headers say anything: (name, code, offset, shape)."""
+    header = b"tensor_file\0" + bytes([1, 0]) + struct.pack("<I", len(fields))
+    for name, code, offset, shape in fields:
+        header += struct.pack("<H", len(name)) + name.encode()
+        header += struct.pack(f"<HBQ{len(shape)}Q", len(shape), code, offset, *shape)
+    assert len(header) <= size
+    return header + bytes(size - len(header))
+
+
+@pytest.mark.parametrize("shape", [(2**40, 2**40, 0), (2**64 - 1, 0), (1,) * 65],
+                         ids=["2^40-2^40-0", "2^64-0", "65-dims"])
+def test_shape_numpy_cannot_hold(tmp_path, shape):
+    path = tmp_path / "shape.bsdf"
+    path.write_bytes(raw_container([("a", 10, 1024, shape)], 1028))  # room for 4 bytes
+    with pytest.raises(ValueError, match=f"tensor file '{path}': field 'a' has shape "
+                                         r"\(.*\), which numpy cannot hold"):
+        read_rgl(path)
+
+
+def _offset_at(data: bytes, name: bytes) -> int:
+    """Position of the offset in the header of field ``name`` (after ndim and type code)."""
+    return data.index(struct.pack("<H", len(name)) + name) + 2 + len(name) + 3
+
+
+def test_overlapping_fields(tmp_path, good):
+    # the header of 'luminance' pointed at the bytes of 'rgb': float32 of the same slices,
+    # read without complaint before, giving another BRDF
+    data = bytearray(tensor_bytes(good))
+    rgb = data[_offset_at(data, b"rgb"):_offset_at(data, b"rgb") + 8]
+    at = _offset_at(data, b"luminance")
+    data[at:at + 8] = rgb
+    path = tmp_path / "overlap.bsdf"
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=f"tensor file '{path}': fields .* overlap"):
+        read_rgl(path)
+    path.write_bytes(raw_container([("a", 10, 64, (2,)), ("b", 10, 68, (2,))], 80))
+    with pytest.raises(ValueError, match=f"tensor file '{path}': fields 'a' and 'b' overlap "
+                                         r"\(bytes 68 to 71 belong to both\)"):
+        read_tensor_file(path)
+
+
+def test_adjacent_and_empty_fields_do_not_overlap(tmp_path):
+    path = tmp_path / "adjacent.bsdf"
+    path.write_bytes(raw_container([("a", 10, 88, (2,)), ("b", 10, 96, (2,)),
+                                    ("c", 10, 88, (0,))], 104))
+    fields = read_tensor_file(path)
+    assert [v.shape for v in fields.values()] == [(2,), (2,), (0,)]
+
+
+def test_misaligned_field(tmp_path, good):
+    path = tmp_path / "misaligned.bsdf"
+    path.write_bytes(raw_container([("a", 10, 66, (2,))], 80))
+    with pytest.raises(ValueError, match=f"tensor file '{path}': field 'a' \\(float32\\) "
+                                         "must start at an offset that is a multiple of its "
+                                         "item size 4, got offset 66"):
+        read_tensor_file(path)
+    data = bytearray(tensor_bytes(good))  # the published layout, 'ndf' moved by 2 bytes
+    at = _offset_at(data, b"ndf")
+    data[at:at + 8] = struct.pack("<Q", struct.unpack_from("<Q", data, at)[0] + 2)
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=f"tensor file '{path}': field 'ndf' .*multiple of "
+                                         "its item size 4"):
         read_rgl(path)
 
 

@@ -255,6 +255,57 @@ def test_table_errors(tmp_path, text, match):
         read_measurements(p, "table")
 
 
+@pytest.mark.parametrize("first", ["inf", "1e999", "-inf"])
+@pytest.mark.parametrize("rest", [" 0 45 180 1\n", "\n"], ids=["row", "alone"])
+def test_first_number_not_finite(tmp_path, first, rest):
+    # format detection once took int() of the first number: OverflowError on inf
+    p = tmp_path / "t.txt"
+    p.write_text(first + rest)
+    with pytest.raises(ValueError, match=f"'{p}', line 1") as info:
+        read_measurements(p)
+    assert "must be finite" in str(info.value) or "must have 5 columns" in str(info.value)
+
+
+@pytest.mark.parametrize("fmt, text", [
+    ("table", "# theta_i phi_i theta_o phi_o R G B\n30 0 45 180 0.1 0.2 0.3\n"),
+    ("table", "30 0 45 180 0.1 0.2 0.3\n"),
+    ("csv", "theta_i [deg],phi_i [deg],theta_o [deg],phi_o [deg],R\n30,0,45,180,0.1\n"),
+    ("cornell", "1\n500\n0.5 0 0.7 3.1 0.1\n"),
+])
+def test_byte_order_mark(tmp_path, fmt, text):
+    """A UTF-8 byte-order mark is skipped in every format, detected or given."""
+    plain, marked = tmp_path / "plain.txt", tmp_path / "marked.txt"
+    plain.write_text(text)
+    marked.write_bytes(b"\xef\xbb\xbf" + text.encode())
+    for given in (None, fmt):
+        a, b = read_measurements(plain, given), read_measurements(marked, given)
+        assert b.info["format"] == fmt
+        np.testing.assert_array_equal(b.values, a.values)  # the same text: bit for bit
+        np.testing.assert_array_equal(b.wi, a.wi)
+    if fmt == "table":
+        np.testing.assert_array_equal(read_table(marked)[2], read_table(plain)[2])
+
+
+@pytest.mark.parametrize("cell", ["1_5", "0.1_5", "1e1_0", "\u0661", "\u0663\u0660",
+                                  "\uff11", "1\u0665"],
+                         ids=["underscore", "fraction", "exponent", "arabic-indic",
+                              "arabic-indic-2", "fullwidth", "mixed"])
+@pytest.mark.parametrize("fmt, text, line", [
+    ("table", "30 0 45 180 {}\n", 1),
+    ("csv", "theta_i,phi_i,theta_o,phi_o,R\n0.5,0,0.7,3,{}\n", 2),
+    ("cornell", "1\n500\n0.5 0 0.7 3 {}\n", 3),
+])
+def test_numbers_in_ascii_digits_only(tmp_path, cell, fmt, text, line):
+    """float() reads "1_5" as 15 and other scripts' digits: refused, as the OBJ reader does."""
+    assert float(cell) >= 0  # what the tables once accepted
+    p = tmp_path / "t.txt"
+    p.write_text(text.format(cell), encoding="utf-8")
+    for given in (None, fmt):
+        with pytest.raises(ValueError, match=f"'{p}', line {line}, column 5: cell must be a "
+                                             f"number, got '{cell}' \\(ASCII digits only"):
+            read_measurements(p, given)
+
+
 # ------------------------------------------------------------------------ paths and options
 def test_bad_paths_and_options(tmp_path, cornell_file):
     with pytest.raises(FileNotFoundError, match="measurement file .*nope.csv' does not exist"):
@@ -276,6 +327,15 @@ def test_bad_paths_and_options(tmp_path, cornell_file):
     with pytest.raises(ValueError, match=r"t.txt', line 2, byte 9: the file must be UTF-8 "
                                          "text, got byte 0xff"):
         read_measurements(p)
+
+
+@pytest.mark.parametrize("reader, what", [(read_measurements, "measurement"),
+                                          (read_table, "table")])
+def test_fifo_refused(on_fifo, reader, what):
+    # opening a FIFO blocks until a writer appears: refused before it is opened
+    with pytest.raises(ValueError, match=f"{what} file '.*pipe.txt' must be a regular file, "
+                                         r"got a FIFO \(named pipe\)"):
+        on_fifo(reader, "pipe.txt")
 
 
 # ------------------------------------------------------------------------------ round trips

@@ -324,6 +324,13 @@ def test_obj_missing_file_is_an_os_error(tmp_path):
     with pytest.raises(OSError, match="nope.obj"):
         Mesh.from_obj(tmp_path / "nope.obj")
 
+
+def test_obj_fifo_refused(on_fifo):
+    # opening a FIFO blocks until a writer appears: refused before it is opened
+    with pytest.raises(ValueError, match=r"OBJ file '.*pipe.obj' must be a regular file, got "
+                                         r"a FIFO \(named pipe\)"):
+        on_fifo(Mesh.from_obj, "pipe.obj")
+
 # -- triangles and cylinders ------------------------------------------------------------------
 
 def test_bvh_triangles_match_brute_force(rng):
