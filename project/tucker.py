@@ -86,7 +86,7 @@ paper_white           0.030 / 0.022 / 0.018 / 0.016 / 0.009 / 0.007
 
 The fine-grid error (``info["fit_l2"]``) tracks these within about 10 % on the films (it
 cannot see the grid's own interpolation error, nor the clamping of negative values). A
-full-turn factored lobe of rank 8 (3.2 kB at float16) reaches 0.23 on chm_orange.
+full-turn factored lobe of rank 8 (3,180 bytes as select stored it) reaches 0.23 on chm_orange.
 
 References
 ----------
