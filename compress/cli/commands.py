@@ -1204,6 +1204,10 @@ def _parser() -> argparse.ArgumentParser:
     add_render(sub, fmt, _add_progress, _progress)
     add_report(sub, fmt, _add_progress, _progress)
 
+    from .export import add_parser as add_export
+
+    add_export(sub, fmt)
+
     i = sub.add_parser("info", formatter_class=fmt,
                        help="versions, threads, limits, models; or what FILE holds",
                        description="Without FILE: versions, threads, basis limits, basis kinds "

@@ -17,8 +17,8 @@ from ..hybrid import Hybrid
 from ._html import _short
 
 _KINDS_READ = ("a file of compress.save (.h5: coefficient matrix, fitted model or hybrid), a "
-               "MERL .binary table, an RGL-EPFL .bsdf file or a measurement table (text, CSV "
-               "or Cornell .brdf)")
+               "MERL .binary table, an RGL-EPFL .bsdf file, an MDL .mbsdf file or a "
+               "measurement table (text, CSV or Cornell .brdf)")
 
 
 def read_source(path: str | os.PathLike) -> Any:
@@ -29,7 +29,8 @@ def read_source(path: str | os.PathLike) -> Any:
     path : str or os.PathLike
         A file of :func:`compress.save` (HDF5), a MERL ``.binary`` table
         (:func:`project.measured.read_merl`), an RGL-EPFL ``.bsdf`` tensor file
-        (:func:`project.measured.read_rgl`) or a measurement table
+        (:func:`project.measured.read_rgl`), an NVIDIA MDL ``.mbsdf`` file
+        (:func:`project.measured.read_mbsdf`) or a measurement table
         (:func:`project.measured.read_measurements`), told apart by their first bytes and
         the ``.binary`` suffix.
 
@@ -45,7 +46,7 @@ def read_source(path: str | os.PathLike) -> Any:
     ValueError
         The file is none of these, or is damaged (the message names it and says why).
     """
-    from project.measured import read_measurements, read_merl, read_rgl
+    from project.measured import read_mbsdf, read_measurements, read_merl, read_rgl
 
     from ..store import file_kind, load
 
@@ -61,6 +62,8 @@ def read_source(path: str | os.PathLike) -> Any:
         return read_rgl(p)
     if kind == "merl":
         return read_merl(p)
+    if kind == "mbsdf":
+        return read_mbsdf(p)
     try:
         return read_measurements(p)
     except ValueError as exc:

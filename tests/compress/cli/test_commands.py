@@ -910,3 +910,48 @@ def test_measurement_file_errors(tmp_path, capsys, ggx_samples, argv, match):
     line = one_line_error(capsys, *argv, "-o", str(tmp_path / "x.h5"))
     assert match.format(tmp=tmp_path, bsdf=BSDF) in line
     assert not (tmp_path / "x.h5").exists()
+
+
+# -- export ------------------------------------------------------------------------------------
+
+def test_export_mbsdf_reads_back_at_texel_centres(tmp_path, capsys):
+    """scatmodes export writes what project.measured.write_mbsdf writes: read back, the
+    file returns the saved model's values at the texel centres (float32 rounding)."""
+    from compress import save
+    from project import FittedModel
+    from project.measured import read_mbsdf
+    from project.measured.mbsdf import texel_centres
+
+    model = FittedModel("lambert+ggx", {"kd": [0.3, 0.2, 0.1], "ks": [0.5, 0.5, 0.5],
+                                        "alpha": 0.3, "f0": 0.04})
+    src = save(model, tmp_path / "m.h5")
+    out = tmp_path / "m.mbsdf"
+    status, text, err = run(capsys, "export", str(src), "--format", "mbsdf", "--resolution",
+                            "6,8", "-o", str(out))
+    assert status == 0, err
+    assert f"wrote {out}" in text and "mbsdf 6 x 6 x 8, 3 channels" in text
+    back = read_mbsdf(out)
+    assert back.resolution == (6, 8)
+    from basis import from_angles
+
+    theta, dphi = texel_centres((6, 8))
+    ti, to, dp = np.meshgrid(theta, theta, dphi, indexing="ij")
+    wi, wo = from_angles(ti.ravel(), 0.0), from_angles(to.ravel(), dp.ravel())
+    np.testing.assert_allclose(back.eval(wi, wo), model.eval(wi, wo), rtol=1e-6, atol=1e-7)
+
+
+@pytest.mark.parametrize("args, match", [
+    (["--resolution", "4"], "--resolution must be two integers"),
+    (["--resolution", "a,b"], "--resolution must be two integers"),
+    (["--resolution", "0,8"], "resolution"),
+])
+def test_export_bad_arguments(tmp_path, capsys, args, match):
+    from compress import save
+    from project import FittedModel
+
+    src = save(FittedModel("lambert+ggx", {"kd": [0.3], "ks": [0.5], "alpha": 0.3,
+                                           "f0": 0.04}), tmp_path / "m.h5")
+    line = one_line_error(capsys, "export", str(src), "--format", "mbsdf", *args, "-o",
+                          str(tmp_path / "x.mbsdf"))
+    assert re.search(match, line)
+    assert not (tmp_path / "x.mbsdf").exists()
