@@ -268,7 +268,7 @@ def test_study_writes_markdown_and_chart(tmp_path, capsys):
 
 # -- help ------------------------------------------------------------------------------------
 @pytest.mark.parametrize("cmd", ["demo", "project", "convert", "fit", "simulate", "study",
-                                 "info"])
+                                 "info", "export"])
 def test_help_for_every_command(cmd, capsys):
     status, out, _ = run(capsys, cmd, "--help")
     assert status == 0 and out.startswith(f"usage: scatmodes {cmd}")
