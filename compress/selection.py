@@ -121,14 +121,15 @@ DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
     *({"form": "model", "family": "tucker", "budget": n, "phi_turn": turn}
       for n in TUCKER_BUDGETS for turn in ("half", "full")),
     # the same on a finer grid, whose own floor is lower (a glossy film: 0.011 instead of
-    # 0.020): tried only when nothing of these sizes met the tolerance on the default grid
+    # 0.020): built only when no smaller candidate met the tolerance (each after the default
+    # grid's candidate of its budget)
     *({"form": "model", "family": "tucker", "budget": n, "phi_turn": turn,
        "grid": FINE_GRID} for n in TUCKER_BUDGETS[-2:] for turn in ("half", "full")),
     # the ladder's end: tables of q in the half/difference angles (project.tabulated), which
     # meet any tolerance down to their interpolation floor (second order in the cell size;
     # 10 % at 9 to 37 kB on three RGL-EPFL files), up to the resolution of the MERL grid
     # (90 x 90 x 360: 0.2-1.1 % on those files, 0.6 % on the green-acrylic MERL surrogate,
-    # 8.7 MB at float16 over half a turn)
+    # 8.7 MB at float16 over half a turn); none larger than the source file is built
     *({"form": "model", "family": "tabulated", "bins": b, "phi_turn": turn}
       for b in ((16, 12, 4), (16, 12, 8), (24, 16, 16), (32, 24, 16), (48, 32, 32),
                 (90, 90, 360))
