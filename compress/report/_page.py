@@ -57,8 +57,36 @@ from ._settings import (
     LIGHTS,
     RECIPROCITY_PAIRS,
     REPORT_CANDIDATES,
+    SHOWN_NM,
     SPHERE_SIZE,
 )
+
+
+def _three_channels(meas: Any) -> tuple[Any, str]:
+    """Return ``meas`` at three of its channels, and the sentence that says which.
+
+    A fit of every channel of a spectral table (31 wavelengths: 64 parameters, ten folds)
+    takes minutes and shows no more than three do: the measured wavelengths nearest to
+    :data:`SHOWN_NM` are kept (their values as measured), or without wavelengths the first,
+    middle and last channels.
+    """
+    if meas.wavelengths is not None:
+        lam = np.asarray(meas.wavelengths, dtype=np.float64)
+        keep = sorted({int(np.argmin(np.abs(lam - nm))) for nm in SHOWN_NM})
+        what = ", ".join(f"{lam[k]:g}" for k in keep) + " nm"
+    else:
+        n = meas.channels
+        keep = sorted({0, n // 2, n - 1})
+        what = "channels " + ", ".join(str(k) for k in keep)
+    names = meas.channel_names
+    sub = project.Measurements(
+        meas.wi, meas.wo, meas.values[:, keep], weights=meas.weights,
+        wavelengths=None if meas.wavelengths is None else np.asarray(meas.wavelengths)[keep],
+        channel_names=None if names is None else tuple(names[k] for k in keep),
+        isotropic=meas.isotropic, name=getattr(meas, "name", None),
+        source=getattr(meas, "source", None))
+    return sub, (f" The file holds {meas.channels} channels; this page fits and shows "
+                 f"{len(keep)} of them ({what}).")
 
 
 class _Page:
@@ -77,6 +105,9 @@ class _Page:
         self.kind = _kind(rep)
         self.rep = rep
         self.meas = rep if isinstance(rep, project.Measurements) else None
+        self.channel_note = ""
+        if self.meas is not None and self.meas.channels > len(SHOWN_NM):
+            self.meas, self.channel_note = _three_channels(self.meas)
         self.ref_meas = self.ref = None
         if reference is not None:
             try:
@@ -122,7 +153,9 @@ class _Page:
             bar = tqdm(total=len(steps), desc="report", unit="section", file=sys.stderr,
                        leave=False)
         parts: list[str] = []
-        for _, step in steps:
+        for name, step in steps:
+            if bar is not None:
+                bar.set_description(f"report: {name}")
             parts.append(step())
             if bar is not None:
                 bar.update(1)
@@ -150,7 +183,7 @@ class _Page:
         self.shown = project.fit_model(self.meas, "lambert+ggx")
         self.fit_note = ("The measurements are shown through a fit of the lambert+ggx "
                          "family (project.fit_model; errors cross-validated on held-out "
-                         "samples).")
+                         "samples)." + self.channel_note)
         return ""
 
     # -- 1. summary ---------------------------------------------------------------------------

@@ -36,6 +36,9 @@ _SAMPLE_CANDIDATES: tuple[dict[str, Any], ...] = (
     {"form": "modal", "kind": "zernike", "order": 2},
     {"form": "modal", "kind": "zernike", "order": 4},
 )
+#: Wavelengths (nm) whose nearest measured channels a report of a spectral table shows (and
+#: fits): a blue, a green and a red.
+SHOWN_NM = (450.0, 550.0, 650.0)
 #: Band edges (degrees) of theta_i and theta_o in section 4.
 BANDS_DEG = (0.0, 15.0, 30.0, 45.0, 60.0, 75.0, 90.0)
 #: Pairs of the error estimates (project.sampling.peak_resolving_pairs); seed of the pairs.
