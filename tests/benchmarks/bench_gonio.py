@@ -29,8 +29,9 @@ from tests.project import gonio  # noqa: E402
 RGL = Path(__file__).resolve().parents[3] / "shared" / "data" / "rgl"
 
 
-def stand_ins(names: list[str]) -> dict[str, project.Measurements]:
-    wi, wo = gonio.cornell_layout(0)
+def stand_ins(names: list[str], near_mirror: bool = True) -> dict[str, project.Measurements]:
+    """The stand-ins, in the layout with (or without) the positions around the mirror."""
+    wi, wo = gonio.cornell_layout(0, near_mirror=near_mirror)
     out = {}
     for k, p in enumerate(gonio.paints()):
         if not names or p.name in names:
@@ -48,8 +49,10 @@ def main() -> None:
     ap.add_argument("names", nargs="*")
     ap.add_argument("--splits", type=int, default=2)
     ap.add_argument("--select", action="store_true")
+    ap.add_argument("--grid", action="store_true", help="the layout without near-mirror "
+                    "positions")
     args = ap.parse_args()
-    sets = stand_ins(args.names)
+    sets = stand_ins(args.names, near_mirror=not args.grid)
     print(f"{'table':22s} {'split':>5s} {'plain l2':>9s} {'fit l2':>8s} {'plain log':>9s} "
           f"{'fit log':>8s} {'alpha p/f':>15s} {'ok':>3s} {'s p/f':>9s}")
     fails = 0

@@ -38,40 +38,52 @@ APERTURE_DEG = 0.6
 
 
 # -- the layout --------------------------------------------------------------------------------
-def cornell_layout(seed: int = 0) -> tuple[np.ndarray, np.ndarray]:
+def cornell_layout(seed: int = 0, *, near_mirror: bool = True) -> tuple[np.ndarray, np.ndarray]:
     """Return (wi, wo), about 1,440 pairs, in the layout of the Cornell paint tables.
 
     For each of 8 incidences (theta_i = 10 ... 80 degrees, phi_i = 0): the plane of
-    incidence on both sides (phi_o = 180: the specular side, dense near the mirror, and
-    phi_o = 0), rings of phi_o at eight elevations and a cross of positions around the
-    mirror direction, out of the plane as well; the elevations are jittered by up to 0.3
-    degrees (seeded) so that no theta_o equals a theta_i, and theta_o <= 79.05 degrees.
+    incidence on both sides (phi_o = 180, the specular side, and phi_o = 0), rings of phi_o
+    at several elevations, and with ``near_mirror`` a cross of positions within 8 degrees of
+    the mirror direction, in and out of the plane (without it, a regular grid of 4-degree
+    steps in theta_o and 5 to 10 degrees in phi_o near the plane: the crest of a sharp
+    highlight falls between the samples). Elevations are jittered by up to 0.3 degrees
+    (seeded) so that no theta_o equals a theta_i, and theta_o <= 79.05 degrees.
     """
     rng = np.random.default_rng(seed)
     ti_all, to_all, po_all = [], [], []
     for ti in np.arange(10.0, 81.0, 10.0):
         to, po = [], []
-        # in the plane, specular side: every 4 degrees, and within 8 degrees of the mirror
-        # at 0.5 to 2 degree steps
-        sweep = np.arange(1.0, 80.0, 4.0)
-        near = ti + np.array([-8, -6, -4, -3, -2, -1.5, -1, -0.5, 0.5, 1, 1.5, 2, 3, 4, 6, 8])
-        for t in np.r_[sweep, near]:
-            to.append(t)
-            po.append(180.0)
-        # in the plane, back side (towards the source)
-        for t in np.arange(3.0, 80.0, 6.0):
-            to.append(t)
-            po.append(0.0)
-        # rings out of the plane
-        for t in (12.0, 24.0, 36.0, 48.0, 60.0, 70.0, 78.5):
-            for p in np.arange(-165.0, 180.0, 30.0):
+        if near_mirror:
+            # in the plane, specular side: every 4 degrees, and within 8 degrees of the
+            # mirror at 0.5 to 2 degree steps
+            near = ti + np.array([-8, -6, -4, -3, -2, -1.5, -1, -0.5, 0.5, 1, 1.5, 2, 3, 4,
+                                  6, 8])
+            for t in np.r_[np.arange(1.0, 80.0, 4.0), near]:
                 to.append(t)
-                po.append(p)
-        # out of the plane around the mirror direction
-        for dp in (-12, -8, -5, -3, -2, -1, 1, 2, 3, 5, 8, 12):
-            for dt in (-1.0, 0.4):
-                to.append(ti + dt)
-                po.append(180.0 + dp)
+                po.append(180.0)
+            for t in np.arange(3.0, 80.0, 6.0):  # the back side (towards the source)
+                to.append(t)
+                po.append(0.0)
+            for t in (12.0, 24.0, 36.0, 48.0, 60.0, 70.0, 78.5):  # rings
+                for p in np.arange(-165.0, 180.0, 30.0):
+                    to.append(t)
+                    po.append(p)
+            for dp in (-12, -8, -5, -3, -2, -1, 1, 2, 3, 5, 8, 12):  # around the mirror
+                for dt in (-1.0, 0.4):
+                    to.append(ti + dt)
+                    po.append(180.0 + dp)
+        else:
+            grid = 79.05 - 3.95 * np.arange(20)  # 79.05 ... 3.95 degrees
+            for t in grid:
+                for p in (180.0, 175.0, -175.0, 165.0, 0.0):
+                    to.append(t)
+                    po.append(p)
+            for t in grid[::2]:
+                for p in np.arange(-140.0, 141.0, 40.0):
+                    to.append(t)
+                    po.append(p)
+            to.append(0.5)
+            po.append(0.0)
         to = np.array(to) + rng.uniform(-0.3, 0.3, len(to))
         to = np.clip(to, 0.2, 79.05)
         to[np.abs(to - ti) < 0.05] += 0.1
