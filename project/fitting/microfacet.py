@@ -12,7 +12,7 @@ The model
     formulas, equal to rounding, together with its derivative in log alpha) and
     Schlick's Fresnel F(u) = F0 + (1 - F0)(1 - u)^5 (Schlick 1994, eq. 15). Parameters:
     ``kd`` (C,) in [0, 1], ``ks`` (C,) in [0, 5], ``alpha`` (GGX alpha or Beckmann RMS
-    slope m, one for all channels) in [1e-3, 1.5], ``f0`` (one for all channels, an
+    slope m, one for all channels) in [5e-4, 1.5], ``f0`` (one for all channels, an
     achromatic Fresnel as of a dielectric; the colour of the highlight is in ``ks``) in
     [0.02, 1]. ks F0 is the specular reflectance at normal incidence, ks the one at
     grazing; ks <= 1 conserves energy, larger values are allowed because measured data
@@ -45,6 +45,10 @@ __all__: list[str] = []
 _SQRT_PI = math.sqrt(math.pi)
 #: tan^2 theta_h on the horizon (h_z = 0), as project.models caps it
 _TAN2_CAP = 1e100
+#: Lower bound of alpha: a clear coat seen through a detector of 0.1 degree reads as
+#: alpha ~ 0.002 (half-angle widths are half the view's), so the bound leaves room below
+#: the sharpest measured paints.
+ALPHA_MIN = 5e-4
 #: Columns of the per-pair geometry of the kernels (:func:`_pair_geometry`).
 _GEO = 7
 
@@ -63,7 +67,7 @@ class _Microfacet:
         self.c = channels
         self.p = 2 * channels + 2
         self.k = 1  # linear parameters besides kd, per channel
-        lo = np.r_[np.zeros(2 * channels), np.log(1e-3), 0.02]
+        lo = np.r_[np.zeros(2 * channels), np.log(ALPHA_MIN), 0.02]
         hi = np.r_[np.ones(channels), np.full(channels, 5.0), np.log(1.5), 1.0]
         self.bounds = (lo, hi)
 
@@ -117,6 +121,15 @@ class _Microfacet:
         s = self.lobe(float(np.exp(xnl[0])), g)
         fr = xnl[1] + (1.0 - xnl[1]) * _geometry(g)[:, 6]
         return np.stack([np.full(g.n, 1.0 / np.pi), fr * s], axis=1)
+
+    #: kd and ks enter linearly, two per channel: fitted by variable projection in l2
+    projected = True
+
+    def search_grid(self) -> NDArray:
+        """(m, 2) points (log alpha, F0) of the global search: alpha over its whole range."""
+        la = np.linspace(self.bounds[0][2 * self.c], self.bounds[1][2 * self.c], 49)
+        f0 = np.array([0.02, 0.04, 0.08, 0.15, 0.3, 0.6, 1.0])
+        return np.stack(np.meshgrid(la, f0, indexing="ij"), axis=-1).reshape(-1, 2)
 
     def nonlinear_grid(self) -> list[NDArray]:
         return [np.array([np.log(a), 0.1]) for a in (0.005, 0.01, 0.02, 0.05, 0.1, 0.2, 0.4)]
