@@ -134,6 +134,10 @@ DEFAULT_CANDIDATES: tuple[dict[str, Any], ...] = (
       for b in ((16, 12, 4), (16, 12, 8), (24, 16, 16), (32, 24, 16), (48, 32, 32),
                 (90, 90, 360))
       for turn in ("half", "full")),
+    # the grid of an NVIDIA MDL measured BSDF (project.fitting.grid), at the source's own
+    # resolution when it has one: the only form that holds what a coarse file makes of a
+    # lobe narrower than its cells (a car paint's clear coat); reciprocal part and whole
+    *({"form": "model", "family": "grid", "symmetric": s} for s in (True, False)),
 )
 #: The default candidates for measurements: parametric models (the factored tables need a
 #: BRDF that can be evaluated anywhere), low orders of the Zernike basis fitted by least
@@ -157,7 +161,8 @@ SAMPLE_CANDIDATES: tuple[dict[str, Any], ...] = (
     {"form": "hybrid", "family": "lambert+ggx", "kind": "zernike", "order": 2},
     {"form": "hybrid", "family": "lambert+ggx", "kind": "zernike", "order": 4},
 )
-_FIT_KEYS = frozenset(project.fitting.FACTORED_OPTIONS) | frozenset(
+_FIT_KEYS = frozenset(project.fitting.GRID_OPTIONS) | frozenset(
+    project.fitting.FACTORED_OPTIONS) | frozenset(
     project.fitting.TABULATED_OPTIONS) | frozenset(project.fitting.TUCKER_OPTIONS) | {
         "restarts", "lobes", "n", "max_nfev", "fit_metric"}
 _KEYS = {"modal": {"kind", "order", "rank", "reciprocal"},
@@ -326,7 +331,7 @@ def select(brdf: Any, tol: float, *, metric: str = "l2",
                         f"project.Measurements, got {type(brdf).__name__}")
     channels = nonneg_int(getattr(brdf, "channels", 1), "brdf.channels")
     default = SAMPLE_CANDIDATES if sampled else DEFAULT_CANDIDATES
-    builds = [_build_spec(c, channels, dtypes)
+    builds = [_build_spec(c, channels, dtypes, getattr(brdf, "resolution", None))
               for c in (default if candidates is None else list(candidates))]
     if not builds:
         raise ValueError("candidates must hold at least one candidate")
@@ -523,6 +528,8 @@ def _is_reciprocal(spec: Mapping[str, Any]) -> bool:
     """Whether a candidate's form is reciprocal by construction."""
     lobe = not (spec.get("family") in _TURNED
                 and spec.get("phi_turn", "half") == "full")
+    if spec.get("family") == "grid":
+        lobe = bool(spec.get("symmetric", True))
     if spec["form"] == "model":
         return lobe
     residual = bool(spec.get("reciprocal", True))
@@ -645,7 +652,8 @@ def _dtypes(dtypes: Iterable[str]) -> tuple[str, ...]:
     return out
 
 
-def _build_spec(c: Mapping[str, Any], channels: int, dtypes: tuple[str, ...]) -> _Build:
+def _build_spec(c: Mapping[str, Any], channels: int, dtypes: tuple[str, ...],
+                resolution: Any = None) -> _Build:
     if not isinstance(c, Mapping):
         raise TypeError(f"each candidate must be a dict with a 'form', got {c!r}")
     spec = dict(c)
@@ -668,6 +676,12 @@ def _build_spec(c: Mapping[str, Any], channels: int, dtypes: tuple[str, ...]) ->
         choice(spec["family"], "candidate family", project.fitting.FAMILIES)
         if spec["family"] == "tucker":  # what _is_reciprocal assumes, whatever the BRDF says
             spec.setdefault("phi_turn", "half")
+        if spec["family"] == "grid":  # the source's own grid, known before the fit
+            spec["resolution"] = project.fitting.grid.grid_resolution(
+                None, spec.get("resolution", resolution))
+            if not isinstance(spec.setdefault("symmetric", True), bool):
+                raise TypeError(f"candidate symmetric must be True or False, got "
+                                f"{spec['symmetric']!r}")
     if "fit_metric" in spec:
         choice(spec["fit_metric"], "candidate fit_metric", METRICS)
     if not isinstance(spec.get("reciprocal", True), bool):
@@ -715,6 +729,8 @@ def _lobe_reals(spec: dict[str, Any], channels: int) -> int | None:
         # at most the budget (the fit chooses a structure within it): select compares it
         # with the smallest found so far as if it were exact
         return int(spec.get("budget", 2048))
+    if family == "grid":
+        return project.fitting.grid.grid_reals(spec["resolution"], c, spec["symmetric"])
     if family == "tabulated":
         n_h, n_d, n_phi = (int(x) for x in spec.get("bins", (32, 32, 64)))
         return n_h * n_d * (n_phi if spec.get("phi_turn") == "full" else n_phi // 2) * c

@@ -22,6 +22,7 @@ family                                     module                             re
 ``"rr8807"``                               :mod:`project.fitting.rr8807`      4 C + 3
 ``"tabulated"``                            :mod:`project.tabulated`           n_h n_d m C
 ``"tucker"``                               :mod:`project.tucker`              <= ``budget``
+``"grid"``                                 :mod:`project.fitting.grid`        n (n+1)/2 m C
 =========================================  =================================  ==============
 
 C is the number of channels, L and K the number of lobes. The lobe of "factored" is
@@ -88,6 +89,7 @@ from .model import (  # noqa: F401
     DEFAULTS,
     FACTORED_OPTIONS,
     FAMILIES,
+    GRID_OPTIONS,
     METRICS,
     SAMPLE_DEFAULTS,
     TABULATED_OPTIONS,

@@ -121,18 +121,20 @@ from ..tucker import TuckerBRDF, fit_tucker
 from ._geometry import _Geometry
 from ._solver import _covariance, _solve
 from .dsbrdf import _DSBRDF, DS_COEFFS
+from .grid import GRID_OPTIONS as _GRID_OPTIONS
+from .grid import grid_model, grid_reals, grid_resolution, sample_grid
 from .lafortune import _Lafortune
 from .microfacet import _Microfacet
 from .rr8807 import _P, _RR8807, _wavelengths
 
-__all__ = ["DEFAULTS", "FACTORED_OPTIONS", "FAMILIES", "METRICS", "SAMPLE_DEFAULTS",
+__all__ = ["DEFAULTS", "FACTORED_OPTIONS", "FAMILIES", "GRID_OPTIONS", "METRICS", "SAMPLE_DEFAULTS",
            "TABULATED_OPTIONS", "TUCKER_OPTIONS", "FittedModel", "fit_model"]
 
 #: The parametric families :func:`fit_model` knows.
 FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807",
-            "tabulated", "tucker")
+            "tabulated", "tucker", "grid")
 #: The families whose model is a table-like object of their own module (not parametric).
-_TABLES = ("factored", "tabulated", "tucker")
+_TABLES = ("factored", "tabulated", "tucker", "grid")
 METRICS = ("l2", "log")
 #: Options of :func:`fit_model` and their defaults (``lobes`` is for "lafortune", default 1,
 #: and "dsbrdf", default 3; ``wavelength`` for "rr8807").
@@ -154,6 +156,8 @@ TABULATED_OPTIONS = ("bins", "quantity", "phi_turn", "warp_d", "sample")
 #: Options of :func:`fit_model` for family "tucker": those of :func:`project.tucker.
 #: fit_tucker`, and the error pairs.
 TUCKER_OPTIONS = ("budget", "ranks", "knots", "color_rank", "grid", "warp_d", "phi_turn")
+#: Options of :func:`fit_model` for family "grid" (:mod:`project.fitting.grid`).
+GRID_OPTIONS = _GRID_OPTIONS
 _ERROR_OPTIONS = ("error_n", "error_seed", "widths")
 
 
@@ -243,6 +247,9 @@ class FittedModel(BRDF):
             self._model = TuckerBRDF.from_params(dict(params))
             self._adopt("tucker", info)
             return
+        if family == "grid":
+            self._init_grid(params, info)
+            return
         if family == "dsbrdf":
             kappa = _param(params, "kappa", 3, low=0.0)
             if kappa.ndim != 3 or kappa.shape[1] != DS_COEFFS or 0 in kappa.shape:
@@ -330,6 +337,21 @@ class FittedModel(BRDF):
             phi_table=params.get("phi_table"), weights=params.get("weights"), **warps)
         self._adopt("factored", info)
 
+    def _init_grid(self, params: Mapping[str, ArrayLike], info: dict | None) -> None:
+        if set(params) != {"table"}:
+            raise ValueError(f"params of family 'grid' must be exactly ['table'], got "
+                             f"{sorted(params)}")
+        self._model, symmetric = grid_model(params["table"])
+        n, m = self._model.resolution
+        self.family = "grid"
+        self.reciprocal = symmetric
+        self.params = {"table": self._model.table}
+        self.channels = self._model.channels
+        self._scalar = self.channels == 1
+        self.nparams = grid_reals((n, m), self.channels, symmetric)
+        self.nbytes = 8 * self.nparams
+        self.info = {} if info is None else dict(info)
+
     def _init_tabulated(self, params: Mapping[str, ArrayLike], info: dict | None) -> None:
         # TabulatedBRDF checks the keys, the table and the grid options
         self._model = TabulatedBRDF.from_params(dict(params))
@@ -364,6 +386,10 @@ class FittedModel(BRDF):
                     f"color_rank={m.color_rank}, warp_d={m.warp_d!r}, "
                     f"phi_turn={m.phi_turn!r}, channels={self.channels}, "
                     f"nbytes={self.nbytes})")
+        if self.family == "grid":
+            n, m = self._model.resolution
+            return (f"FittedModel('grid', resolution=({n}, {m}), symmetric={self.reciprocal}, "
+                    f"channels={self.channels}, nbytes={self.nbytes})")
         if self.family == "tabulated":
             m = self._model
             return (f"FittedModel('tabulated', bins={m.bins}, warp_d={m.warp_d!r}, "
@@ -470,6 +496,8 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         return _fit_tabulated(brdf, metric, options, start)
     if family == "tucker":
         return _fit_tucker(brdf, metric, options, start)
+    if family == "grid":
+        return _fit_grid(brdf, metric, options, start)
     opts = _options(family, options)
     if not callable(getattr(brdf, "eval", None)):
         raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)) or "
@@ -678,6 +706,25 @@ def _fit_tabulated(brdf: object, metric: str, options: dict, start: float) -> Fi
                    "warp_d": tab.warp_d, "phi_turn": tab.phi_turn, "quantity": tab.quantity,
                    "restarts": 1,
                    "samples": {"fit": "project.tabulated.tabulate (grid nodes)",
+                               "error": described},
+                   "seconds": time.perf_counter() - start}
+    return fitted
+
+
+def _fit_grid(brdf: object, metric: str, options: dict, start: float) -> FittedModel:
+    """fit_model(brdf, "grid"): sample at the cell centres, then the errors."""
+    own, pairs, described = _table_options("grid", metric, options, GRID_OPTIONS)
+    if not callable(getattr(brdf, "eval", None)):
+        raise TypeError(f"brdf must be a BRDF (an object with eval(wi, wo)), got "
+                        f"{type(brdf).__name__}")
+    resolution = grid_resolution(brdf, own.get("resolution"))
+    symmetric = own.get("symmetric", True)
+    if not isinstance(symmetric, (bool, np.bool_)):
+        raise TypeError(f"symmetric must be True or False, got {symmetric!r}")
+    fitted = FittedModel("grid", {"table": sample_grid(brdf, resolution, bool(symmetric))})
+    fitted.info = {**_errors(brdf, fitted, pairs), "metric": metric,
+                   "resolution": resolution, "symmetric": bool(symmetric), "restarts": 1,
+                   "samples": {"fit": f"the cell centres of a {resolution} MBSDF grid",
                                "error": described},
                    "seconds": time.perf_counter() - start}
     return fitted

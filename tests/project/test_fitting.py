@@ -323,7 +323,7 @@ def test_bad_params(family, params, error, match):
 
 def test_families_listed():
     assert FAMILIES == ("lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf",
-                        "rr8807", "tabulated", "tucker")
+                        "rr8807", "tabulated", "tucker", "grid")
 
 
 # -- the factored family ------------------------------------------------------------------------

@@ -689,7 +689,7 @@ def test_fit_options_match_the_library():
 
     # the tabulated families need a BRDF that can be evaluated anywhere, not samples
     assert commands._FIT_FAMILIES == tuple(f for f in FAMILIES
-                                           if f not in ("factored", "tabulated", "tucker"))
+                                           if f not in ("factored", "tabulated", "tucker", "grid"))
     assert commands._FIT_FORMATS == MEASUREMENT_FORMATS
     assert commands._FIT_ANGLES == ANGLE_UNITS
     assert commands._MERL_HEADER == np.array(MERL_SHAPE[1:], dtype="<i4").tobytes()
