@@ -63,6 +63,8 @@ although the objective (cos^2 theta_i weighted, theta < 1.4 rad, two-step) diffe
 
 References
 ----------
+- G. H. Golub and V. Pereyra, "The differentiation of pseudo-inverses and nonlinear least
+  squares problems whose variables separate", SIAM J. Numer. Anal. 10(2), 1973, pp. 413-432.
 - E. Heitz, "Understanding the masking-shadowing function in microfacet-based BRDFs",
   Journal of Computer Graphics Techniques 3(2), 2014.
 - J. Holzschuch and R. Pacanowski, "A physically accurate reflectance model combining
