@@ -117,7 +117,7 @@ def _projected(model, g: _Geometry, f: NDArray, w: NDArray, k: int, rng: np.rand
     kept = getattr(g, "_search", None)
     if kept is None or kept[0] != key:
         costs = np.array([0.5 * linear(x)[1].sum() for x in grid])
-        g._search = kept = (key, _basins(grid, costs))
+        g._search = kept = (key, _basins(grid, costs, getattr(model, "profile_axis", 0)))
     starts = kept[1]
     x0 = starts[k] if k < len(starts) else model.nonlinear_random(rng)
     span = nl_hi - nl_lo
@@ -125,20 +125,21 @@ def _projected(model, g: _Geometry, f: NDArray, w: NDArray, k: int, rng: np.rand
     run = least_squares(res, x0, bounds=(nl_lo, nl_hi), method="trf", x_scale=1.0,
                         diff_step=1e-6, max_nfev=max_nfev)
     x = full(np.clip(run.x, nl_lo, nl_hi))
-    res_fn, jac_fn, _ = _fused(model, g, f, w, "l2")
+    res_fn, jac_fn, _ = _objective(model, g, f, w, "l2")
     fun = res_fn(x)
     return SimpleNamespace(x=x, cost=0.5 * float(fun @ fun), fun=fun, jac=jac_fn(x),
                            status=int(run.status), nfev=int(run.nfev) + len(grid),
                            njev=int(run.njev or 0))
 
 
-def _basins(grid: NDArray, costs: NDArray) -> list[NDArray]:
-    """Grid points at the local minima of the cost's profile over the first coordinate.
+def _basins(grid: NDArray, costs: NDArray, axis: int = 0) -> list[NDArray]:
+    """Grid points at the local minima of the cost's profile over one coordinate.
 
-    The profile is the least cost over the other coordinates at each value of the first;
-    its local minima (the lowest first) are the starting points of distinct basins.
+    The profile is the least cost over the other coordinates at each value of coordinate
+    ``axis`` (the roughness or the exponent); its local minima (the lowest first) are the
+    starting points of distinct basins.
     """
-    first = grid[:, 0]
+    first = grid[:, axis]
     values = np.unique(first)
     best = [int(np.flatnonzero(first == v)[np.argmin(costs[first == v])]) for v in values]
     prof = costs[best]

@@ -135,6 +135,20 @@ class _Lafortune:
     def columns(self, xnl: NDArray, g: _Geometry) -> NDArray:
         return np.stack([np.full(g.n, 1.0 / np.pi), *self._lobes(xnl, g)], axis=1)
 
+    @property
+    def projected(self) -> bool:
+        """One lobe: kd and rho, two linear parameters per channel (variable projection)."""
+        return self.lobes == 1
+
+    #: the basins of the global search are those of the exponent (log n)
+    profile_axis = 1
+
+    def search_grid(self) -> NDArray:
+        """(m, 2) points (t, log n) of the global search of one lobe: n over its range."""
+        ln = np.linspace(np.log(1.5), np.log(_N_MAX), 40)
+        t = np.array([-2.0, -1.0, -0.3, 0.0, 0.3, 1.0, 2.0, 4.0])
+        return np.stack(np.meshgrid(t, ln, indexing="ij"), axis=-1).reshape(-1, 2)
+
     def nonlinear_grid(self) -> list[NDArray]:
         if self.lobes == 1:
             exps = [[e] for e in (3.0, 10.0, 30.0, 100.0, 300.0, 1000.0, 3000.0)]
