@@ -63,7 +63,7 @@ API = [
 
 
 def _public(module: str) -> tuple[list[str], list[str]]:
-    """The names of a module's ``__all__``: (classes and functions, data), in order."""
+    """Return the names of a module's ``__all__``: (classes and functions, data), in order."""
     mod = importlib.import_module(module)
     objects, data = [], []
     for name in mod.__all__:
@@ -75,7 +75,7 @@ def _public(module: str) -> tuple[list[str], list[str]]:
 
 
 def _comment(module: str, name: str) -> str:
-    """The ``#:`` comment that documents a constant where it is defined (any of our modules)."""
+    """Return the ``#:`` comment of a constant where it is defined (any of our modules)."""
     from sphinx.pycode import ModuleAnalyzer
 
     mod = importlib.import_module(module)
@@ -201,6 +201,7 @@ class CommandHelp(Directive):
     """
 
     def run(self) -> list[nodes.Node]:
+        """Return one section per command: its name and its help text."""
         import argparse
 
         from compress.cli.commands import _parser
@@ -222,6 +223,7 @@ class CommandHelp(Directive):
 
 
 def setup(app) -> None:  # noqa: ANN001
+    """Register the directive and the event handlers of this configuration."""
     app.add_directive("command-help", CommandHelp)
     app.connect("autodoc-process-docstring", _plain_pipes)
     app.connect("build-finished", _copy_mathjax)
