@@ -15,6 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._sampling import LobeSampler, MixtureSampler, TableSampler, sampler_for
+from ._traced import traced_eval
+from ._traced_sampling import traced_sampler
 
 __all__ = ["INCIDENT", "PLUGIN", "ClampStats", "bsdf", "evaluated", "register", "render",
            "negative_fraction", "representation", "set_default_variant"]
@@ -273,8 +275,38 @@ def _make_class() -> type:
             self.stats = ClampStats()
             self.sampler: LobeSampler | TableSampler | MixtureSampler = sampler_for(
                 rep, incident=incident)
+            # the Dr.Jit forms (JIT variants): None where a form has none (numpy path)
+            self._f = self._s = None
+            if not scalar:
+                self._f = traced_eval(rep)
+                self._s = traced_sampler(self.sampler) if self._f is not None else None
+            #: True when eval, pdf and sample are Dr.Jit code that Mitsuba traces
+            self.traced = self._s is not None
             self.m_components = [flags]
             self.m_flags = flags
+
+        # -- the Dr.Jit core (traced) ------------------------------------------------------
+        def _spectrum_jit(self, vals: list, cos_o: Any, ok: Any) -> Any:
+            """Channel values f -> max(f, 0) cos, as mi.Spectrum; 0 where not ``ok``."""
+            vals = [dr.select(ok, dr.maximum(v, 0.0) * cos_o, 0.0) for v in vals]
+            if mono:
+                y = vals[0] if len(vals) == 1 else (
+                    float(_LUMINANCE[0]) * vals[0] + float(_LUMINANCE[1]) * vals[1]
+                    + float(_LUMINANCE[2]) * vals[2])
+                return mi.Color1f(y)
+            if len(vals) == 1:
+                return mi.Color3f(vals[0], vals[0], vals[0])
+            return mi.Color3f(*vals)
+
+        def _eval_jit(self, ctx: Any, wi: Any, wo: Any, ok: Any) -> Any:
+            """f cos(theta of Mitsuba's wo) of unit directions as mi.Spectrum, 0 off ``ok``."""
+            importance = ctx.mode == mi.TransportMode.Importance
+            to_light_is_wo = (self.incident == "light") != bool(importance)
+            light, view = (wo, wi) if to_light_is_wo else (wi, wo)
+            return self._spectrum_jit(self._f(light, view), wo.z, ok)
+
+        def _ok_jit(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
+            return active & (wi.z > 0.0) & (wo.z > 0.0)
 
         # -- the numpy core -------------------------------------------------------------
         def _check(self) -> None:
@@ -316,6 +348,12 @@ def _make_class() -> type:
         # -- the mitsuba.BSDF interface -------------------------------------------------
         def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
             """f(w_light, w_camera) cos(theta_o): Mitsuba's cosine-weighted BSDF."""
+            if self.traced:
+                wi, wo = dr.normalize(si.wi), dr.normalize(wo)
+                ok = self._ok_jit(ctx, wi, wo, active)
+                if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                    ok = mi.Bool(False)
+                return self._eval_jit(ctx, wi, wo, ok)
             self._check()
             wi_, wo_, ok = self._inputs(si, wo, active)
             ok &= bool(ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0))
@@ -323,6 +361,10 @@ def _make_class() -> type:
 
         def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
             """Density of :meth:`sample`, per steradian."""
+            if self.traced:
+                wi, wo = dr.normalize(si.wi), dr.normalize(wo)
+                ok = self._ok_jit(ctx, wi, wo, active)
+                return dr.select(ok, self._s.pdf(wi, wo), 0.0)
             self._check()
             wi_, wo_, ok = self._inputs(si, wo, active)
             p = np.where(ok, self.sampler.pdf(_unit(wi_), _unit(wo_)), 0.0)
@@ -330,6 +372,13 @@ def _make_class() -> type:
 
         def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> tuple[Any, Any]:
             """(:meth:`eval`, :meth:`pdf`) in one call."""
+            if self.traced:
+                wi, wo = dr.normalize(si.wi), dr.normalize(wo)
+                ok = self._ok_jit(ctx, wi, wo, active)
+                p = dr.select(ok, self._s.pdf(wi, wo), 0.0)
+                if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                    ok = mi.Bool(False)
+                return self._eval_jit(ctx, wi, wo, ok), p
             self._check()
             wi_, wo_, ok = self._inputs(si, wo, active)
             p = np.where(ok, self.sampler.pdf(_unit(wi_), _unit(wo_)), 0.0)
@@ -339,6 +388,8 @@ def _make_class() -> type:
         def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any,
                    active: Any = True) -> tuple[Any, Any]:
             """Draw wo from the mixture; the weight is eval / pdf (0 for failed samples)."""
+            if self.traced:
+                return self._sample_jit(ctx, si, sample1, sample2, active)
             self._check()
             n = 1 if scalar else max(dr.width(si.wi), dr.width(sample1), dr.width(sample2),
                                      dr.width(active))
@@ -358,6 +409,22 @@ def _make_class() -> type:
             bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
             bs.sampled_component = mi.UInt32(0)
             return bs, spectrum(weight)
+
+        def _sample_jit(self, ctx: Any, si: Any, sample1: Any, sample2: Any,
+                        active: Any) -> tuple[Any, Any]:
+            wi = dr.normalize(si.wi)
+            wo, p = self._s.sample(wi, sample1, sample2)
+            ok = active & (p > 0.0) & (wi.z > 0.0)
+            if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                ok = mi.Bool(False)
+            value = self._eval_jit(ctx, wi, wo, ok)
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = wo
+            bs.pdf = dr.select(ok, p, 0.0)
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+            bs.sampled_component = mi.UInt32(0)
+            return bs, value * dr.select(ok, dr.rcp(dr.select(ok, p, 1.0)), 0.0)
 
         def traverse(self, callback: Any) -> None:
             """No differentiable parameters: the representation is fixed numpy data."""
