@@ -453,9 +453,130 @@ def _tabulated(params: dict) -> Traced:
 
 # -- coefficient matrices ---------------------------------------------------------------------
 
+def _lift(w: Any, lift: float) -> tuple[Any, Any, Any]:
+    """Directions with cos(theta) < ``lift`` moved up to it at the same azimuth."""
+    x, y, z = w.x, w.y, w.z
+    if lift > 0.0:
+        s_lift = math.sqrt(1.0 - lift * lift)
+        low = z < lift
+        s = dr.sqrt(dr.fma(x, x, y * y))
+        hp = s > 0.0
+        fs = s_lift * dr.rcp(dr.select(hp, s, 1.0))
+        x = dr.select(low, dr.select(hp, x * fs, s_lift), x)
+        y = dr.select(low, dr.select(hp, y * fs, 0.0), y)
+        z = dr.select(low, lift, z)
+    return x, y, z
+
+
+def _separable_geometry(kind: str, x: Any, y: Any, z: Any) -> tuple[Any, Any, Any]:
+    """a(w) (real, imaginary) and the Chebyshev variable x(w) of a basis kind."""
+    if kind == "zernike":
+        r = dr.rsqrt(1.0 + z)
+        return x * r, y * r, 1.0 - 2.0 * z
+    return x, y, (z if kind == "sh" else dr.fma(2.0 * z, z, -1.0))
+
+
+def _chebyshev(x: Any, k: int) -> list[Any]:
+    """T_0(x) .. T_{k-1}(x) (at least T_0) by the three-term recurrence."""
+    t = [mi.Float(1.0), x]
+    for _ in range(2, k):
+        t.append(dr.fma(2.0 * x, t[-1], -t[-2]))
+    return t[:max(k, 1)]
+
+
+_KINDS = ("zernike", "harmonics", "harmonics-even", "sh")
+
+
+def _basis_rows(b: Any) -> tuple[int, list[tuple[int, bool, np.ndarray]]] | None:
+    """Per function (m, sin?, Chebyshev coefficients of its polynomial part), from radial."""
+    kind = b.kind
+    if kind not in _KINDS:
+        return None
+    blocks = b.azimuthal_blocks()
+    kmax = max((c.size for c in blocks.cos), default=1)
+    nodes = 2 * kmax + 8
+    t = np.cos(np.pi * (np.arange(nodes) + 0.5) / nodes)
+    z = (1.0 - t) / 2.0 if kind == "zernike" else t if kind == "sh" else np.sqrt((t + 1) / 2)
+    table = b.radial(z)
+    cheb = np.polynomial.chebyshev.chebvander(t, max(kmax - 1, 0))
+    degree = np.asarray(b.degree)
+    rows: list[Any] = [None] * b.size
+    for m, (ci, si) in enumerate(zip(blocks.cos, blocks.sin, strict=True)):
+        if ci.size == 0:
+            continue
+        if kind == "zernike":
+            fac = np.sqrt(1.0 - z) ** m
+        else:
+            fac = np.sqrt((1.0 - z) * (1.0 + z)) ** m * (z if kind == "harmonics" else 1.0)
+        poly = table[:, ci] / fac[:, None]
+        v, *_ = np.linalg.lstsq(cheb[:, :ci.size], poly, rcond=None)  # (k cheb, k funcs)
+        for col, j in enumerate(ci):
+            rows[j] = (m, False, v[:, col])
+        for j in si:
+            col = int(np.flatnonzero(degree[ci] == degree[j])[0])
+            rows[j] = (m, True, v[:, col])
+    return kmax, rows
+
+
+def _dense(cm: CoefficientMatrix) -> Traced | None:
+    """b(w_i)^T M b(w_o) with every basis function traced (anisotropic matrices)."""
+    b = cm.basis
+    built = _basis_rows(b)
+    if built is None:
+        return None
+    kmax, rows = built
+    mats = np.asarray(cm.matrix, dtype=np.float64)
+    if mats.ndim == 2:
+        mats = mats[None]
+    kind = b.kind
+    fcos = cm.quantity == "f_cos"
+    lift = 1e-3 if fcos else 0.0
+    top = max(r[0] for r in rows)
+
+    def functions(w: Any) -> tuple[list[Any], Any]:
+        x, y, z = _lift(w, lift)
+        ar, ai, xc = _separable_geometry(kind, x, y, z)
+        t = _chebyshev(xc, kmax)
+        powers = [(mi.Float(1.0), mi.Float(0.0))]
+        for _ in range(top):
+            pr, pi = powers[-1]
+            powers.append((pr * ar - pi * ai, pr * ai + pi * ar))
+        g = z if kind == "harmonics" else None
+        out = []
+        for m, sin, coef in rows:
+            p = None
+            for a, v in enumerate(coef):
+                if v != 0.0:
+                    p = t[a] * float(v) if p is None else dr.fma(t[a], float(v), p)
+            p = mi.Float(0.0) if p is None else p
+            if m > 0:
+                p = p * powers[m][1 if sin else 0]
+            out.append(p if g is None else p * g)
+        return out, z
+
+    def f(wi: Any, wo: Any) -> list:
+        bi, zi = functions(wi)
+        bo, zo = functions(wo)
+        res = []
+        for mat in mats:
+            q = None
+            for k in range(mat.shape[1]):
+                u = None
+                for j in range(mat.shape[0]):
+                    v = float(mat[j, k])
+                    if v != 0.0:
+                        u = bi[j] * v if u is None else dr.fma(bi[j], v, u)
+                if u is not None:
+                    q = u * bo[k] if q is None else dr.fma(u, bo[k], q)
+            q = mi.Float(0.0) if q is None else q
+            res.append(q * dr.rcp(zi * zo) if fcos else q)
+        return res
+    return f
+
+
 def _matrix(cm: CoefficientMatrix) -> Traced | None:
     if not cm.is_isotropic:
-        return None
+        return _dense(cm)
     form = cm.evaluator().separable()
     if form is None:
         return None
