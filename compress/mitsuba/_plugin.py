@@ -273,17 +273,23 @@ def _make_class() -> type:
             self.rep = rep
             self.incident = incident
             self.stats = ClampStats()
-            self.sampler: LobeSampler | TableSampler | MixtureSampler = sampler_for(
-                rep, incident=incident)
-            # the Dr.Jit forms (JIT variants): None where a form has none (numpy path)
-            self._f = self._s = None
-            if not scalar:
-                self._f = traced_eval(rep)
-                self._s = traced_sampler(self.sampler) if self._f is not None else None
-            #: True when eval, pdf and sample are Dr.Jit code that Mitsuba traces
-            self.traced = self._s is not None
+            # the Dr.Jit form (JIT variants): None where a form has none (numpy path)
+            self._f = None if scalar else traced_eval(rep)
+            self.sampler = sampler_for(rep, incident=incident)
             self.m_components = [flags]
             self.m_flags = flags
+
+        @property
+        def sampler(self) -> LobeSampler | TableSampler | MixtureSampler:
+            """The importance sampler (numpy; its Dr.Jit twin is made when it is set)."""
+            return self._sampler
+
+        @sampler.setter
+        def sampler(self, value: LobeSampler | TableSampler | MixtureSampler) -> None:
+            self._sampler = value
+            self._s = traced_sampler(value) if self._f is not None else None
+            #: True when eval, pdf and sample are Dr.Jit code that Mitsuba traces
+            self.traced = self._s is not None
 
         # -- the Dr.Jit core (traced) ------------------------------------------------------
         def _spectrum_jit(self, vals: list, cos_o: Any, ok: Any) -> Any:
