@@ -99,7 +99,7 @@ def _floats(a: Any) -> list[float]:
 
 
 def _device(a: Any) -> Any:
-    """A read-only device array (float32 in the rgb variants) for ``dr.gather``."""
+    """Return a device array (float32 in the rgb variants) to read with ``dr.gather``."""
     return mi.Float(np.ascontiguousarray(np.asarray(a, dtype=np.float64).reshape(-1)))
 
 
@@ -139,7 +139,7 @@ def _half_difference(wi: Any, wo: Any, fold: bool) -> tuple[Any, Any, Any]:
 
 
 def _power_root(x: Any, p: float) -> Any:
-    """x ** (1 / p) for the warp exponents 1, 2, 3 (x >= 0)."""
+    """X ** (1 / p) for the warp exponents 1, 2, 3 (x >= 0)."""
     if p == 1.0:
         return x
     if p == 2.0:
@@ -173,7 +173,7 @@ def _microfacet(beckmann: bool) -> Callable[[dict], Traced]:
 
 
 def _smith(c: Any, rs: Any, beckmann: bool) -> Any:
-    """c Lambda(c) of Smith's masking for rs = alpha sin theta (project.fitting.microfacet)."""
+    """C Lambda(c) of Smith's masking for rs = alpha sin theta (project.fitting.microfacet)."""
     if not beckmann:
         return rs * rs / (2.0 * (c + dr.sqrt(dr.fma(c, c, rs * rs))))
     pos = rs > 0.0
@@ -440,7 +440,7 @@ def _tabulated(params: dict) -> Traced:
             scale = dr.select(cc > 0.0, dr.rcp(dr.select(cc > 0.0, cc, 1.0)), 0.0)
         out = []
         for c in range(nch):
-            def at(di: int, dj: int, k: Any) -> Any:
+            def at(di: int, dj: int, k: Any, c: int = c) -> Any:
                 return _gather(data, base + ((di * nd + dj) * m * nch + c) + k * nch)
             lo = dr.lerp(dr.lerp(at(0, 0, k0), at(0, 0, k1), tw),
                          dr.lerp(at(0, 1, k0), at(0, 1, k1), tw), tv)

@@ -74,6 +74,7 @@ class _Lobe:
         if s.kind in ("ggx", "beckmann"):
             kind = mi.MicrofacetType.GGX if s.kind == "ggx" else mi.MicrofacetType.Beckmann
             self.distr = mi.MicrofacetDistribution(kind, float(s.alpha), True)
+            self.alpha = float(s.alpha)
         elif s.kind == "table":
             self.cdf = mi.Float(s._cdf)
             self.mass = mi.Float(s.mass)
@@ -99,7 +100,29 @@ class _Lobe:
 
     def _half_pdf(self, wi: Any, h: Any) -> Any:
         if self.distr is not None:
-            return self.distr.pdf(wi, h)
+            # D(h) G1(w_i) (w_i . h) / cos theta_i with the exact Smith G1 of the numpy
+            # sampler (Mitsuba's own pdf approximates the Beckmann G1 by a rational fit)
+            a = self.alpha
+            a2 = a * a
+            z2 = h.z * h.z
+            s2 = dr.maximum(dr.fma(h.x, h.x, h.y * h.y), 0.0)
+            if self.kind == "ggx":
+                den = dr.fma(a2, z2, s2)
+                d = a2 * _INV_PI / dr.maximum(den * den, 1e-30)
+            else:
+                z2 = dr.maximum(z2, 1e-30)
+                d = dr.select(h.z > 0.0, dr.exp(-s2 / (z2 * a2)) * (_INV_PI / a2) / (z2 * z2),
+                              0.0)
+            c = dr.clip(wi.z, 1e-6, 1.0)
+            sn = dr.safe_sqrt(1.0 - c * c)
+            if self.kind == "ggx":
+                g1 = 2.0 * c / (c + dr.sqrt(dr.fma(c, c, dr.square(a * sn))))
+            else:
+                big = sn <= 0.0
+                x = c / dr.select(big, 1.0, a * sn)
+                lam = 0.5 * (dr.erf(x) - 1.0) + dr.exp(-x * x) * (0.5 / math.sqrt(math.pi)) / x
+                g1 = dr.select(big, 1.0, dr.rcp(1.0 + dr.maximum(lam, 0.0)))
+            return d * g1 * dr.maximum(dr.dot(wi, h), 0.0) / c
         theta = dr.safe_acos(h.z)
         k = mi.UInt32(dr.clip(dr.floor(TABLE_BINS * dr.safe_sqrt(theta * (2.0 / math.pi))),
                               0.0, TABLE_BINS - 1.0))
