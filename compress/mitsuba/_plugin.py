@@ -311,8 +311,17 @@ def _make_class() -> type:
             light, view = (wo, wi) if to_light_is_wo else (wi, wo)
             return self._spectrum_jit(self._f(light, view), wo.z, ok)
 
-        def _ok_jit(self, ctx: Any, wi: Any, wo: Any, active: Any) -> Any:
-            return active & (wi.z > 0.0) & (wo.z > 0.0)
+        def _inputs_jit(self, si: Any, wo: Any, active: Any) -> tuple[Any, Any, Any]:
+            """Return unit directions and the mask of pairs above the horizon.
+
+            Pairs off the mask (below the horizon, zero or NaN vectors: a failed sample's
+            w_o is the zero vector) are replaced by the normal, so that no table index is
+            formed from a NaN (a gather does not check its index).
+            """
+            wi, wo = dr.normalize(si.wi), dr.normalize(wo)
+            ok = active & (wi.z > 0.0) & (wo.z > 0.0)
+            z = mi.Vector3f(0.0, 0.0, 1.0)
+            return dr.select(ok, wi, z), dr.select(ok, wo, z), ok
 
         # -- the numpy core -------------------------------------------------------------
         def _check(self) -> None:
@@ -355,8 +364,7 @@ def _make_class() -> type:
         def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
             """f(w_light, w_camera) cos(theta_o): Mitsuba's cosine-weighted BSDF."""
             if self.traced:
-                wi, wo = dr.normalize(si.wi), dr.normalize(wo)
-                ok = self._ok_jit(ctx, wi, wo, active)
+                wi, wo, ok = self._inputs_jit(si, wo, active)
                 if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
                     ok = mi.Bool(False)
                 return self._eval_jit(ctx, wi, wo, ok)
@@ -368,8 +376,7 @@ def _make_class() -> type:
         def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
             """Density of :meth:`sample`, per steradian."""
             if self.traced:
-                wi, wo = dr.normalize(si.wi), dr.normalize(wo)
-                ok = self._ok_jit(ctx, wi, wo, active)
+                wi, wo, ok = self._inputs_jit(si, wo, active)
                 return dr.select(ok, self._s.pdf(wi, wo), 0.0)
             self._check()
             wi_, wo_, ok = self._inputs(si, wo, active)
@@ -379,8 +386,7 @@ def _make_class() -> type:
         def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> tuple[Any, Any]:
             """(:meth:`eval`, :meth:`pdf`) in one call."""
             if self.traced:
-                wi, wo = dr.normalize(si.wi), dr.normalize(wo)
-                ok = self._ok_jit(ctx, wi, wo, active)
+                wi, wo, ok = self._inputs_jit(si, wo, active)
                 p = dr.select(ok, self._s.pdf(wi, wo), 0.0)
                 if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
                     ok = mi.Bool(False)
@@ -419,11 +425,14 @@ def _make_class() -> type:
         def _sample_jit(self, ctx: Any, si: Any, sample1: Any, sample2: Any,
                         active: Any) -> tuple[Any, Any]:
             wi = dr.normalize(si.wi)
+            up = active & (wi.z > 0.0)
+            wi = dr.select(up, wi, mi.Vector3f(0.0, 0.0, 1.0))
             wo, p = self._s.sample(wi, sample1, sample2)
-            ok = active & (p > 0.0) & (wi.z > 0.0)
+            ok = up & (p > 0.0)
             if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
                 ok = mi.Bool(False)
-            value = self._eval_jit(ctx, wi, wo, ok)
+            # failed samples (w_o = 0) are evaluated at the normal, then masked
+            value = self._eval_jit(ctx, wi, dr.select(ok, wo, mi.Vector3f(0.0, 0.0, 1.0)), ok)
             bs = dr.zeros(mi.BSDFSample3f)
             bs.wo = wo
             bs.pdf = dr.select(ok, p, 0.0)

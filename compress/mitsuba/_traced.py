@@ -238,6 +238,63 @@ def _lafortune(params: dict) -> Traced:
     return f
 
 
+# -- the directional-statistics BRDF ---------------------------------------------------------
+
+def _bspline_basis(x: Any, knots: list[float], degree: int) -> list[Any]:
+    """B-spline basis functions (Cox-de Boor) at x on literal knots, the last span closed."""
+    n = len(knots) - 1
+    last = max(i for i in range(n) if knots[i] < knots[i + 1])
+    b = []
+    for i in range(n):
+        if knots[i] < knots[i + 1]:
+            inside = (x >= knots[i]) & ((x < knots[i + 1]) if i < last else (x <= knots[i + 1]))
+            b.append(dr.select(inside, 1.0, 0.0))
+        else:
+            b.append(mi.Float(0.0))
+    for k in range(1, degree + 1):
+        nxt = []
+        for i in range(n - k):
+            v = mi.Float(0.0)
+            d1 = knots[i + k] - knots[i]
+            d2 = knots[i + k + 1] - knots[i + 1]
+            if d1 > 0.0:
+                v = (x - knots[i]) * (1.0 / d1) * b[i]
+            if d2 > 0.0:
+                v = v + (knots[i + k + 1] - x) * (1.0 / d2) * b[i + 1]
+            nxt.append(v)
+        b = nxt
+    return b
+
+
+def _dsbrdf(params: dict) -> Traced:
+    from project.fitting.dsbrdf import DS_KNOTS
+    kappa = np.asarray(params["kappa"], dtype=np.float64)  # (K, 6, C)
+    gamma = np.asarray(params["gamma"], dtype=np.float64)
+    knots = [float(v) for v in DS_KNOTS]
+    lobes, ncoef, nch = kappa.shape
+
+    def f(wi: Any, wo: Any) -> list:
+        h = wi + wo
+        norm = dr.norm(h)
+        cd = dr.clip(0.5 * norm, 0.0, 1.0)
+        ch = dr.clip(h.z * dr.rcp(dr.select(norm > 0.0, norm, 1.0)), 0.0, 1.0)
+        ch = dr.select(norm > 0.0, ch, 0.0)
+        td = dr.clip(dr.safe_acos(cd), 0.0, _HALF_PI)
+        basis_ = _bspline_basis(td, knots, 2)
+        logt = dr.log(dr.select(ch > 0.0, ch, 1.0))
+        out = []
+        for c in range(nch):
+            acc = mi.Float(0.0)
+            for j in range(lobes):
+                kap = sum(basis_[i] * float(kappa[j, i, c]) for i in range(ncoef))
+                gam = sum(basis_[i] * float(gamma[j, i, c]) for i in range(ncoef))
+                tg = dr.select(ch > 0.0, dr.exp(gam * logt), 0.0)
+                acc = acc + (dr.exp(kap * tg) - 1.0)
+            out.append(acc)
+        return out
+    return f
+
+
 # -- the factored lobe ------------------------------------------------------------------------
 
 class _Table1D:
@@ -661,6 +718,7 @@ _FAMILIES: dict[str, Callable[[dict], Traced]] = {
     "lambert+ggx": _microfacet(False),
     "lambert+beckmann": _microfacet(True),
     "lafortune": _lafortune,
+    "dsbrdf": _dsbrdf,
     "factored": _factored,
     "tucker": _tucker,
     "tabulated": _tabulated,
