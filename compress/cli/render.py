@@ -106,18 +106,24 @@ def _reference(path: Path, cmi: Any) -> Any:
                      f"{str(path)!r}")
 
 
-def _render(cmi: Any, material: Any, size: int, spp: int, bar: Any) -> np.ndarray:
+def _traced(*materials: Any) -> bool:
+    """Whether every material has a Dr.Jit form (Mitsuba's own plugins, given as dicts, do)."""
+    return all(getattr(m, "traced", True) for m in materials if m is not None)
+
+
+def _render(cmi: Any, material: Any, size: int, spp: int, bar: Any, traced: bool
+            ) -> np.ndarray:
     """Average of up to _PASSES renders with their own seeds (spp split between them).
 
-    Mitsuba's default (symbolic) mode, as ``mi.render``; a material without a Dr.Jit form
-    (``traced`` False: a MERL reference, the numpy-only families) in evaluated mode.
+    ``traced``: Mitsuba's default (symbolic) mode, as ``mi.render``; otherwise evaluated
+    mode, which a live material without a Dr.Jit form (a MERL reference) needs, since
+    Dr.Jit traces every live BSDF in a symbolic call.
     """
     import mitsuba as mi
 
     passes = min(_PASSES, spp)
     counts = [spp // passes + (k < spp % passes) for k in range(passes)]
     img = None
-    traced = getattr(material, "traced", True)  # Mitsuba's own plugins (dicts) trace
     for k, n in enumerate(counts):
         scene = cmi.sphere_scene(material, size=size, spp=n)
         image = mi.render(scene, seed=k) if traced else cmi.render(scene, seed=k)
@@ -170,8 +176,10 @@ def run(args: argparse.Namespace, *,
     steps = min(_PASSES, args.spp) * (1 if reference is None else 2)
     with tqdm(total=steps, desc=f"render ({variant})", disable=not wants_progress(args),
               leave=False, file=sys.stderr, unit="pass") as bar:
-        img = _render(cmi, material, args.size, args.spp, bar)
-        ref = None if reference is None else _render(cmi, reference, args.size, args.spp, bar)
+        traced = _traced(material, reference)
+        img = _render(cmi, material, args.size, args.spp, bar, traced)
+        ref = None if reference is None else _render(cmi, reference, args.size, args.spp, bar,
+                                                     traced)
     _write(mi, img, out, out.with_suffix(".exr"))
     written = [out, out.with_suffix(".exr")]
     # the traced path does not count what it clamps: measure it on random pairs
