@@ -14,7 +14,7 @@ if TYPE_CHECKING:  # numpy loads when the command runs: --help stays instant
 
 __all__ = ["add_parser", "run"]
 
-VARIANTS = ("auto", "llvm_ad_rgb", "scalar_rgb")
+VARIANTS = ("auto", "llvm_ad_rgb", "cuda_ad_rgb", "scalar_rgb")
 #: Render passes (each with its own seed, averaged): the progress bar's steps.
 _PASSES = 8
 
@@ -89,6 +89,15 @@ def _variant(mi: Any, name: str) -> str:
                 raise ValueError(f"--variant llvm_ad_rgb needs LLVM >= 16 (libLLVM), which "
                                  f"Mitsuba cannot use here ({exc}); use --variant "
                                  f"scalar_rgb") from None
+    if name == "cuda_ad_rgb":
+        try:
+            mi.set_variant("cuda_ad_rgb")
+            dr.eval(mi.Float(1.0) + 1.0)
+            return "cuda_ad_rgb"
+        except Exception as exc:  # noqa: BLE001 - no usable CUDA device or driver
+            raise ValueError(f"--variant cuda_ad_rgb needs an NVIDIA GPU with its driver, "
+                             f"which Mitsuba cannot use here ({exc}); use --variant "
+                             f"llvm_ad_rgb or scalar_rgb") from None
     mi.set_variant("scalar_rgb")
     return "scalar_rgb"
 

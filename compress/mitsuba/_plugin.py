@@ -169,8 +169,9 @@ def bsdf(rep: Any, *, incident: str = "light") -> Any:
 def evaluated() -> Iterator[None]:
     """Run Dr.Jit loops and calls in evaluated (wavefront) mode inside the block.
 
-    The plugin evaluates numpy code on concrete arrays; Mitsuba's JIT variants trace loops
-    and virtual calls symbolically by default, where no array holds values yet. In evaluated
+    Needed only by representations without a Dr.Jit form (``traced`` False), whose numpy
+    code needs concrete arrays; Mitsuba's JIT variants trace loops and virtual calls
+    symbolically by default, where no array holds values yet. In evaluated
     mode every iteration of the path tracer's loop is a wavefront of concrete arrays, and the
     plugin is called once per wavefront (Dr.Jit's ``JitFlag.SymbolicLoops`` and
     ``JitFlag.SymbolicCalls`` off). A no-op in scalar variants.
@@ -184,6 +185,9 @@ def evaluated() -> Iterator[None]:
 
 def render(scene: Any, *, spp: int | None = None, seed: int = 0) -> Any:
     """``mitsuba.render`` in evaluated mode (see :func:`evaluated`); returns the image tensor.
+
+    Kept for representations without a Dr.Jit form and for compatibility: traced ones
+    render with ``mi.render`` in Mitsuba's default mode (the same image, the same code).
 
     Parameters
     ----------
@@ -246,10 +250,12 @@ def _make_class() -> type:
         return mi.Vector3f(np.ascontiguousarray(x.T, dtype=np.float32))
 
     class ScatmodesBSDF(mi.BSDF):
-        """Mitsuba BSDF evaluating a scatmodes representation with numpy, once per wavefront.
+        """Mitsuba BSDF of a scatmodes representation: its Dr.Jit form, else numpy.
 
         Plugin parameters: ``filename`` (a file written by ``compress.save``) and
-        ``incident`` ("light" or "camera").
+        ``incident`` ("light" or "camera"). ``traced`` is True when eval, pdf and sample
+        are Dr.Jit code that Mitsuba traces (JIT variants, forms of
+        :func:`compress.mitsuba._traced.traced_eval`); otherwise numpy runs once per call.
         """
 
         def __init__(self, props: Any) -> None:
@@ -327,9 +333,11 @@ def _make_class() -> type:
         def _check(self) -> None:
             if not scalar and dr.flag(dr.JitFlag.SymbolicScope):
                 raise RuntimeError(
-                    "the scatmodes BSDF evaluates numpy code and cannot be traced "
-                    "symbolically: render with compress.mitsuba.render(scene) or inside "
-                    "compress.mitsuba.evaluated()")
+                    f"the scatmodes BSDF of {type(self.rep).__name__} has no Dr.Jit form "
+                    f"and evaluates numpy code, which cannot be traced symbolically: "
+                    f"render with compress.mitsuba.render(scene) or inside "
+                    f"compress.mitsuba.evaluated() (while this instance is alive, every "
+                    f"scene needs that)")
 
         def _values(self, ctx: Any, wi: NDArray, wo: NDArray, ok: NDArray) -> NDArray:
             """Return f cos(theta of Mitsuba's wo) as (n, 3) RGB, 0 where not ``ok``."""

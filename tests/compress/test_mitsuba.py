@@ -691,6 +691,17 @@ def test_errors(reps, tmp_path):
         cmi.bsdf(reps["ggx"], incident="viewer")
     with pytest.raises(RuntimeError, match="missing.h5"):
         mi.load_dict({"type": "scatmodes", "filename": str(tmp_path / "missing.h5")})
+    # a damaged file and an unknown form: the loader's messages, at load time
+    damaged = tmp_path / "damaged.h5"
+    damaged.write_bytes(b"\x89HDF\r\n\x1a\n" + b"x" * 100)
+    with pytest.raises(RuntimeError, match="damaged or truncated HDF5 file"):
+        mi.load_dict({"type": "scatmodes", "filename": str(damaged)})
+    import h5py
+    unknown = compress.save(reps["ggx"], tmp_path / "unknown.h5")
+    with h5py.File(unknown, "r+") as h:
+        h.attrs["content"] = "hologram"
+    with pytest.raises(RuntimeError, match="content is 'hologram', expected one of"):
+        mi.load_dict({"type": "scatmodes", "filename": str(unknown)})
     two = CoefficientMatrix(basis.HemiZernike(1), np.stack([np.eye(3)] * 2), quantity="f")
     with pytest.raises(ValueError, match="1 or 3 \\(RGB\\) channels"):
         cmi.bsdf(two)
