@@ -39,20 +39,22 @@ traces them symbolically into its kernels like its own plugins, so scenes render
 ``mi.render`` in the default mode, from ``mi.load_dict`` or from XML files read by
 ``mi.load_file``. The forms: coefficient matrices in every basis (reciprocal or not,
 isotropic or not), the fitted families "lambert+ggx", "lambert+beckmann", "lafortune",
-"dsbrdf", "factored", "tucker" and "tabulated", and hybrids of these; the samplers below.
+"dsbrdf", "rr8807", "factored", "tucker" and "tabulated" (every family), and hybrids of
+these; the samplers below.
 Values agree with the numpy evaluation to float32 rounding. The arrays the forms read are
 made once, at load time; nothing in the traced path touches numpy or the host.
 
-The numpy evaluation remains for everything else (the "rr8807" family, measured data read
-by :mod:`project.measured`, any object with ``eval``) and in the scalar variants: called once
-per call of ``eval``, ``pdf``, ``eval_pdf`` or ``sample``, one wavefront of directions in the
-JIT variants (converted with ``numpy`` once and the result wrapped back), one sample in the
-scalar variants. Such an instance cannot be traced: in the JIT variants render with
-:func:`render` (or inside :func:`evaluated`), which switches Dr.Jit to evaluated loops and
-calls; while it is alive every scene needs that, since Dr.Jit traces every live BSDF of a
-symbolic call. The attribute ``traced`` of a plugin object says which path it takes
-(set it to False to force the numpy path, e.g. as a reference). Only the numpy path counts
-clamped values in ``stats``; :func:`negative_fraction` measures them for any form.
+The numpy evaluation remains for everything else (measured data read by
+:mod:`project.measured`, the models of :mod:`project.models`, any object with ``eval``) and
+in the scalar variants: called once per call of ``eval``, ``pdf``, ``eval_pdf`` or
+``sample``, one wavefront of directions in the JIT variants (converted with ``numpy`` once
+and the result wrapped back), one sample in the scalar variants. Such an instance cannot be
+traced: in the JIT variants render with :func:`render` (or inside :func:`evaluated`), which
+switches Dr.Jit to evaluated loops and calls; while it is alive every scene needs that,
+since Dr.Jit traces every live BSDF of a symbolic call. The attribute ``traced`` of a plugin
+object says which path it takes (set it to False to force the numpy path, e.g. as a
+reference). Only the numpy path counts clamped values in ``stats``;
+:func:`negative_fraction` measures them for any form.
 
 Importance sampling
 -------------------

@@ -104,7 +104,10 @@ def _reps() -> dict[str, object]:
                                     "gamma": ds_rng.uniform(1.0, 8.0, (2, 6, 3))})
     return {"matrix": matrix, "ggx": ggx, "beckmann": beck, "factored": factored,
             "tabulated": tab, "tucker": tucker, "hybrid": hybrid, "lafortune": lafortune,
-            "dsbrdf": dsbrdf, "general": _nonreciprocal()}
+            "dsbrdf": dsbrdf, "general": _nonreciprocal(),
+            "rr8807": FittedModel("rr8807", {"kd": [0.1, 0.2, 0.3], "ks": [0.5, 0.6, 0.7],
+                                             "kw": [0.01, 0.02, 0.03], "f0": [0.04, 0.5, 0.9],
+                                             "sigma": 0.1, "p": 1.0, "a": 0.9})}
 
 
 _CACHE: dict[str, object] = {}
@@ -174,7 +177,7 @@ def _eval_llvm(b, wi, wo, reverse=False):
 # -- eval ----------------------------------------------------------------------------------------
 
 KINDS = ["matrix", "ggx", "beckmann", "factored", "tabulated", "tucker", "hybrid",
-         "lafortune", "dsbrdf", "general"]
+         "lafortune", "dsbrdf", "rr8807", "general"]
 
 
 @pytest.mark.parametrize("kind", KINDS)
