@@ -189,17 +189,19 @@ def render_speed(path: Path, cache: Path, size: int, spp: int, rounds: int, n: i
     si.wi = mi.Vector3f(0.5, 0.0, math.sqrt(0.75))
     ctx = mi.BSDFContext()
     print(f"\nper-sample cost (ns; one call on {n} pairs, theta_i = 30 deg, best of "
-          f"{repeats}); eval, sample, and the render's BSDF share (render - diffuse) per "
-          f"sample of the last round")
+          f"{repeats}); eval, pdf, sample (= draw + pdf + eval: the draw is the rest), and "
+          f"the render's BSDF share (render - diffuse) per sample of the last round")
     base = times["diffuse"][-1]
     for k, b in materials.items():
         if k == "diffuse":
             continue
         b = b if not isinstance(b, dict) else mi.load_dict(b)
         t_eval = _call_seconds(lambda b=b: dr.eval(b.eval(ctx, si, wo)), repeats)
+        t_pdf = _call_seconds(lambda b=b: dr.eval(b.pdf(ctx, si, wo)), repeats)
         t_samp = _call_seconds(lambda b=b: dr.eval(b.sample(ctx, si, u0, u12)), repeats)
         share = (times[k][-1] - base) / (size * size * spp)
-        print(f"{k:20s} eval {1e9 * t_eval / n:6.1f}  sample {1e9 * t_samp / n:6.1f}  "
+        print(f"{k:20s} eval {1e9 * t_eval / n:6.1f}  pdf {1e9 * t_pdf / n:6.1f}  sample "
+              f"{1e9 * t_samp / n:6.1f} (draw ~{1e9 * (t_samp - t_eval - t_pdf) / n:6.1f})  "
               f"render share {1e9 * share:6.1f}")
 
 
