@@ -311,7 +311,7 @@ def _make_class() -> type:
             return mi.Color3f(*vals)
 
         def _eval_jit(self, ctx: Any, wi: Any, wo: Any, ok: Any) -> Any:
-            """F cos(theta of Mitsuba's wo) of unit directions as mi.Spectrum, 0 off ``ok``."""
+            """Return f cos(theta of Mitsuba's wo) as mi.Spectrum (0 off ``ok``)."""
             importance = ctx.mode == mi.TransportMode.Importance
             to_light_is_wo = (self.incident == "light") != bool(importance)
             light, view = (wo, wi) if to_light_is_wo else (wi, wo)

@@ -709,7 +709,6 @@ def _matrix(cm: CoefficientMatrix) -> Traced | None:
     coefa, tria = form["coefa"], form["tria"]
     fcos = form["fcos"]
     lift = form["min_cos"] if fcos else 0.0
-    s_lift = math.sqrt(1.0 - lift * lift)
     nb, nch, _ = coef.shape
     kmax = int(max(tri.max(), 1))
     kmax = int(round((math.sqrt(8 * kmax + 1) - 1) / 2))
@@ -718,25 +717,11 @@ def _matrix(cm: CoefficientMatrix) -> Traced | None:
     anti = [(a, b) for b in range(kmax) for a in range(b)]
 
     def geometry(w: Any) -> tuple[Any, Any, Any, Any]:
-        x, y, z = w.x, w.y, w.z
-        if lift > 0.0:
-            low = z < lift
-            s = dr.sqrt(dr.fma(x, x, y * y))
-            hp = s > 0.0
-            fs = s_lift * dr.rcp(dr.select(hp, s, 1.0))
-            x = dr.select(low, dr.select(hp, x * fs, s_lift), x)
-            y = dr.select(low, dr.select(hp, y * fs, 0.0), y)
-            z = dr.select(low, lift, z)
-        if kind == "zernike":
-            r = dr.rsqrt(1.0 + z)
-            return x * r, y * r, 1.0 - 2.0 * z, z
-        return x, y, (z if kind == "sh" else dr.fma(2.0 * z, z, -1.0)), z
+        x, y, z = _lift(w, lift)
+        return (*_separable_geometry(kind, x, y, z), z)
 
     def cheb(x: Any) -> list[Any]:
-        t = [mi.Float(1.0), x]
-        for _ in range(2, kmax):
-            t.append(dr.fma(2.0 * x, t[-1], -t[-2]))
-        return t[:max(kmax, 1)]
+        return _chebyshev(x, kmax)
 
     def f(wi: Any, wo: Any) -> list:
         ax, ay, xi, zi = geometry(wi)
