@@ -22,8 +22,11 @@ where it matters):
   "factored", "tucker", "tabulated";
 - :class:`compress.Hybrid`: its lobe plus its residual matrix, when both have a form here.
 
-Anything else (measured data read by :mod:`project.measured`, the analytic models of
-:mod:`project.models`, any object with ``eval``) returns ``None``: the plugin then evaluates
+- the analytic models ``Lambert`` and ``CookTorrance`` (separable Smith G, F = 1 or the
+  exact Fresnel reflectance) of :mod:`project.models`.
+
+Anything else (measured data read by :mod:`project.measured`, the other analytic models,
+any object with ``eval``) returns ``None``: the plugin then evaluates
 it with numpy in Dr.Jit's evaluated mode (:func:`compress.mitsuba.render`).
 """
 
@@ -77,6 +80,9 @@ def traced_eval(rep: Any) -> Traced | None:
         if lobe is None or res is None:
             return None
         return _sum(lobe, res)
+    model = _analytic(rep)
+    if model is not None:
+        return model
     family = getattr(rep, "family", None)
     params = getattr(rep, "params", None)
     if not isinstance(family, str) or params is None:
@@ -107,6 +113,60 @@ def _device(a: Any) -> Any:
 
 def _gather(table: Any, index: Any) -> Any:
     return dr.gather(mi.Float, table, index)
+
+
+# -- analytic models of project.models ---------------------------------------------------
+
+def _analytic(rep: Any) -> Traced | None:
+    """Lambert, and CookTorrance with the separable Smith G (F = 1 or exact Fresnel)."""
+    from project.models import CookTorrance, Lambert
+    if isinstance(rep, Lambert):
+        albedo = _floats(rep.arrays["albedo"])
+        return lambda wi, wo: [mi.Float(a * _INV_PI) for a in albedo]
+    if not isinstance(rep, CookTorrance) or rep.shadowing != "separable":
+        return None
+    p = rep.arrays
+    nch = rep.channels
+    kd = _floats(np.broadcast_to(p["kd"], (nch,)))
+    rough = _floats(np.broadcast_to(p["roughness"], (nch,)))
+    lobes = {r: _microfacet_lobe(r, rep.distribution == "beckmann") for r in set(rough)}
+    ior = None if "ior" not in p else _floats(np.broadcast_to(p["ior"], (nch,)))
+    ext = None if "k" not in p else _floats(np.broadcast_to(p["k"], (nch,)))
+
+    def f(wi: Any, wo: Any) -> list:
+        spec = {r: lobe(wi, wo)[0] for r, lobe in lobes.items()}
+        cd = dr.clip(0.5 * dr.norm(wi + wo), 0.0, 1.0)
+        out = []
+        for c in range(nch):
+            s = spec[rough[c]]
+            if ior is not None:
+                s = s * _fresnel(cd, ior[c], ext[c])
+            out.append(kd[c] * _INV_PI + s)
+        return out
+    return f
+
+
+def _fresnel(u: Any, n: float, k: float) -> Any:
+    """Unpolarised Fresnel reflectance of n + i k at cos = u (project.models.fresnel)."""
+    s2 = (1.0 - u) * (1.0 + u)
+    t = n * n - k * k - s2
+    nk2 = (n * k) ** 2
+    r = dr.sqrt(t * t + 4.0 * nk2)
+    pos = t >= 0.0
+    big = dr.select(pos, r + t, r - t) * 0.5
+    small = dr.select(big > 0.0, nk2 / dr.select(big > 0.0, big, 1.0), 0.0)
+    a2 = dr.select(pos, big, small)
+    b2 = dr.select(pos, small, big)
+    a = dr.sqrt(a2)
+    den_s = dr.square(a + u) + b2
+    rs = dr.select(den_s > 0.0, (dr.square(a - u) + b2) / dr.select(den_s > 0.0, den_s, 1.0),
+                   0.0)
+    au = a * u
+    bu2 = b2 * u * u
+    den_p = dr.square(au + s2) + bu2
+    rp = rs * dr.select(den_p > 0.0, (dr.square(au - s2) + bu2)
+                        / dr.select(den_p > 0.0, den_p, 1.0), 1.0)
+    return dr.clip(0.5 * (rs + rp), 0.0, 1.0)
 
 
 # -- half/difference angles --------------------------------------------------------------

@@ -240,6 +240,30 @@ def test_pdf_and_sample_llvm_match_numpy_sampler(kind, reps, rng):
     assert close.mean() > 0.99, (kind, close.mean())
 
 
+def test_analytic_models_are_traced(reps, rng):
+    """Lambert and CookTorrance (separable G, F = 1 or exact Fresnel) in memory, and a hybrid."""
+    use("llvm_ad_rgb")
+    from project.models import Lambert
+    zb = basis.HemiZernike(2)
+    res = np.zeros((zb.size, zb.size))
+    res[0, 0] = 0.2
+    models = [Lambert([0.2, 0.5, 0.8]), CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx"),
+              CookTorrance(0.0, [0.2, 0.3, 0.4], "beckmann", ior=[0.18, 0.42, 1.37],
+                           k=[3.42, 2.35, 1.77]),
+              Hybrid(Lambert(0.4), CoefficientMatrix(zb, res, quantity="f"))]
+    assert Lambert(0.3).arrays["albedo"].tolist() == [0.3]
+    wi, wo = _upper(rng, 2000), _upper(rng, 2000)
+    for m in models:
+        b = cmi.bsdf(m)
+        assert b.traced, m
+        ref = _expected(m, wo, wi)
+        np.testing.assert_allclose(_eval_llvm(b, wi, wo), ref, rtol=TRACED_RTOL,
+                                   atol=TRACED_RTOL * ref.max())
+    # other models keep the numpy path
+    assert not cmi.bsdf(CookTorrance(0.1, 0.3, shadowing="height-correlated")).traced
+    gc.collect()
+
+
 def test_one_eval_per_wavefront(reps, rng):
     """The LLVM variant hands the whole wavefront to rep.eval in one call."""
     use("llvm_ad_rgb")
