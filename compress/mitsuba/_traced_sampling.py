@@ -123,7 +123,7 @@ class _Lobe:
                 lam = 0.5 * (dr.erf(x) - 1.0) + dr.exp(-x * x) * (0.5 / math.sqrt(math.pi)) / x
                 g1 = dr.select(big, 1.0, dr.rcp(1.0 + dr.maximum(lam, 0.0)))
             return d * g1 * dr.maximum(dr.dot(wi, h), 0.0) / c
-        theta = dr.safe_acos(h.z)
+        theta = dr.atan2(dr.sqrt(dr.fma(h.x, h.x, h.y * h.y)), h.z)  # exact near the pole
         k = mi.UInt32(dr.clip(dr.floor(TABLE_BINS * dr.safe_sqrt(theta * (2.0 / math.pi))),
                               0.0, TABLE_BINS - 1.0))
         return dr.gather(mi.Float, self.density, k)

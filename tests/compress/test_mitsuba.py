@@ -48,9 +48,10 @@ RGL = DATA / "paper_white_rgb.bsdf"
 RTOL = 2e-6
 #: The JIT variants evaluate the Dr.Jit forms in float32 throughout (angles by atan2, warps
 #: by sqrt / cbrt, table interpolation, the Chebyshev sums of a matrix): observed max 1e-5
-#: relative (tabulated and Tucker, on 20,000 random pairs; 4e-5 for a dsbrdf lobe, whose
-#: cos(theta_h)^gamma amplifies rounding by gamma ~ 200; 2e-6 for the others) against the
-#: float64 numpy evaluation; 1e-4 leaves headroom and still catches any convention error.
+#: relative against the float64 numpy evaluation on 20,000 random pairs (tabulated, Tucker,
+#: rr8807; 3.5e-5 for a MERL table, 4e-5 for a dsbrdf lobe with gamma ~ 200, whose
+#: cos(theta_h)^gamma amplifies rounding; 2e-6 for the others); 1e-4 leaves headroom and
+#: still catches any convention error.
 TRACED_RTOL = 1e-4
 
 
@@ -262,6 +263,24 @@ def test_analytic_models_are_traced(reps, rng):
     # other models keep the numpy path
     assert not cmi.bsdf(CookTorrance(0.1, 0.3, shadowing="height-correlated")).traced
     gc.collect()
+
+
+def test_merl_table_is_traced(rng):
+    """A MERL table (trilinear) evaluates on the device as its numpy lookup does."""
+    use("llvm_ad_rgb")
+    from project.measured.merl import MERLBRDF
+    i, j, k = np.meshgrid(np.arange(90), np.arange(90), np.arange(180), indexing="ij")
+    base = 0.1 + 2.0 * np.exp(-i / 6.0) * (1.0 + 0.3 * np.cos(2 * np.pi * k / 180)) \
+        + 0.001 * j
+    table = np.stack([base, 0.8 * base, 0.5 * base])
+    table[:, 0, 0, :3] = np.nan  # an invalid cell: filled from its nearest valid one
+    merl = MERLBRDF(table)
+    b = cmi.bsdf(merl)
+    assert b.traced
+    wi, wo = _upper(rng, 2000), _upper(rng, 2000)
+    ref = _expected(merl, wo, wi)
+    np.testing.assert_allclose(_eval_llvm(b, wi, wo), ref, rtol=TRACED_RTOL,
+                               atol=TRACED_RTOL * ref.max())
 
 
 def test_one_eval_per_wavefront(reps, rng):
