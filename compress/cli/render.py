@@ -125,7 +125,7 @@ def _render(cmi: Any, material: Any, size: int, spp: int, bar: Any, traced: bool
     """Average of up to _PASSES renders with their own seeds (spp split between them).
 
     ``traced``: Mitsuba's default (symbolic) mode, as ``mi.render``; otherwise evaluated
-    mode, which a live material without a Dr.Jit form (a MERL reference) needs, since
+    mode, which a live material without a Dr.Jit form (an object of your own) needs, since
     Dr.Jit traces every live BSDF in a symbolic call.
     """
     import mitsuba as mi
