@@ -39,11 +39,12 @@ traces them symbolically into its kernels like its own plugins, so scenes render
 ``mi.render`` in the default mode, from ``mi.load_dict`` or from XML files read by
 ``mi.load_file``. The forms: coefficient matrices in every basis (reciprocal or not,
 isotropic or not), the fitted families "lambert+ggx", "lambert+beckmann", "lafortune",
-"dsbrdf", "rr8807", "factored", "tucker" and "tabulated" (every family), ``Lambert`` and
+"dsbrdf", "rr8807", "factored", "tucker" and "tabulated" (every family), the models
+``Lambert``, ``Minnaert``, ``Phong``, ``BlinnPhong``, ``OrenNayar`` (qualitative) and
 ``CookTorrance`` (separable Smith G) of :mod:`project.models`, MERL tables, and hybrids of
-these; the samplers below.
-Values agree with the numpy evaluation to float32 rounding. The arrays the forms read are
-made once, at load time; nothing in the traced path touches numpy or the host.
+these; the samplers below. Values agree with the numpy evaluation to float32 rounding. The
+arrays the forms read are made once, at load time; nothing in the traced path touches numpy
+or the host.
 
 The numpy evaluation remains for everything else (RGL and other measured data read by
 :mod:`project.measured`, other models of :mod:`project.models`, any object with ``eval``) and

@@ -22,8 +22,9 @@ where it matters):
   "factored", "tucker", "tabulated";
 - :class:`compress.Hybrid`: its lobe plus its residual matrix, when both have a form here.
 
-- the analytic models ``Lambert`` and ``CookTorrance`` (separable Smith G, F = 1 or the
-  exact Fresnel reflectance) of :mod:`project.models`;
+- the analytic models ``Lambert``, ``Minnaert``, ``Phong``, ``BlinnPhong``, ``OrenNayar``
+  (qualitative form) and ``CookTorrance`` (separable Smith G, F = 1 or the exact Fresnel
+  reflectance) of :mod:`project.models`;
 - MERL tables (:func:`project.measured.read_merl`), trilinear or nearest, read from a
   device copy of their filled lookup table (17.5 MB in float32).
 
@@ -164,20 +165,68 @@ def _merl(rep: Any) -> Traced:
 # -- analytic models of project.models ---------------------------------------------------
 
 def _analytic(rep: Any) -> Traced | None:
-    """Lambert, and CookTorrance with the separable Smith G (F = 1 or exact Fresnel)."""
-    from project.models import CookTorrance, Lambert
-    if isinstance(rep, Lambert):
-        albedo = _floats(rep.arrays["albedo"])
-        return lambda wi, wo: [mi.Float(a * _INV_PI) for a in albedo]
-    if not isinstance(rep, CookTorrance) or rep.shadowing != "separable":
+    """Return the form of an analytic model of project.models, or None.
+
+    Lambert, Minnaert, Phong, Blinn-Phong, Oren-Nayar (qualitative) and CookTorrance with the
+    separable Smith G (F = 1 or exact Fresnel).
+    """
+    from project import models
+    if not isinstance(rep, models.Lambert | models.Minnaert | models.Phong |
+                      models.BlinnPhong | models.OrenNayar | models.CookTorrance):
         return None
-    p = rep.arrays
     nch = rep.channels
-    kd = _floats(np.broadcast_to(p["kd"], (nch,)))
-    rough = _floats(np.broadcast_to(p["roughness"], (nch,)))
+    p = {k: _floats(np.broadcast_to(v, (nch,))) for k, v in rep.arrays.items()}
+    if isinstance(rep, models.Lambert):
+        return lambda wi, wo: [mi.Float(a * _INV_PI) for a in p["albedo"]]
+    if isinstance(rep, models.Minnaert):
+        def minnaert(wi: Any, wo: Any) -> list:
+            x = dr.clip(wi.z, 0.0, 1.0) * dr.clip(wo.z, 0.0, 1.0)
+            return [mi.Float(a * (k + 1.0) / (2.0 * math.pi)) if k == 1.0 else
+                    a * (k + 1.0) / (2.0 * math.pi)
+                    * dr.select(x > 0.0, dr.power(dr.maximum(x, 1e-30), k - 1.0), 0.0)
+                    for a, k in zip(p["albedo"], p["k"], strict=True)]
+        return minnaert
+    if isinstance(rep, models.Phong | models.BlinnPhong):
+        blinn = isinstance(rep, models.BlinnPhong)
+
+        def phong(wi: Any, wo: Any) -> list:
+            if blinn:
+                h = wi + wo
+                norm = dr.norm(h)
+                base = dr.clip(dr.select(norm > 0.0, h.z / dr.select(norm > 0.0, norm, 1.0),
+                                         1.0), 0.0, 1.0)
+            else:
+                base = wi.z * wo.z - wi.x * wo.x - wi.y * wo.y
+            out = []
+            for kd, ks, n in zip(p["kd"], p["ks"], p["n"], strict=True):
+                scale = (n + 1.0) / (8.0 * math.pi) if blinn else (n + 2.0) / (2.0 * math.pi)
+                lobe = dr.select(base > 0.0, dr.power(dr.maximum(base, 1e-30), n),
+                                 1.0 if (blinn and n == 0.0) else 0.0)
+                out.append(kd * _INV_PI + ks * scale * lobe)
+            return out
+        return phong
+    if isinstance(rep, models.OrenNayar):
+        if rep.form != "qualitative":
+            return None
+
+        def oren_nayar(wi: Any, wo: Any) -> list:
+            dot = wi.x * wo.x + wi.y * wo.y
+            cmax = dr.maximum(dr.clip(wi.z, 0.0, 1.0), dr.clip(wo.z, 0.0, 1.0))
+            t = dr.select(cmax > 1e-300, dr.maximum(dot, 0.0) / dr.select(cmax > 0.0, cmax,
+                                                                          1.0), 0.0)
+            out = []
+            for rho, sigma in zip(p["albedo"], p["sigma"], strict=True):
+                s2 = sigma * sigma
+                a = 1.0 - 0.5 * s2 / (s2 + 0.33)
+                b = 0.45 * s2 / (s2 + 0.09)
+                out.append(rho * _INV_PI * (a + b * t))
+            return out
+        return oren_nayar
+    if rep.shadowing != "separable":
+        return None
+    kd, rough = p["kd"], p["roughness"]
     lobes = {r: _microfacet_lobe(r, rep.distribution == "beckmann") for r in set(rough)}
-    ior = None if "ior" not in p else _floats(np.broadcast_to(p["ior"], (nch,)))
-    ext = None if "k" not in p else _floats(np.broadcast_to(p["k"], (nch,)))
+    ior, ext = p.get("ior"), p.get("k")
 
     def f(wi: Any, wo: Any) -> list:
         spec = {r: lobe(wi, wo)[0] for r, lobe in lobes.items()}

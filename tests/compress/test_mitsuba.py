@@ -242,13 +242,16 @@ def test_pdf_and_sample_llvm_match_numpy_sampler(kind, reps, rng):
 
 
 def test_analytic_models_are_traced(reps, rng):
-    """Lambert and CookTorrance (separable G, F = 1 or exact Fresnel) in memory, and a hybrid."""
+    """Analytic models of project.models in memory (those with a form), and a hybrid."""
     use("llvm_ad_rgb")
     from project.models import Lambert
     zb = basis.HemiZernike(2)
     res = np.zeros((zb.size, zb.size))
     res[0, 0] = 0.2
+    from project.models import BlinnPhong, Minnaert, OrenNayar, Phong
     models = [Lambert([0.2, 0.5, 0.8]), CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx"),
+              Minnaert([1.0, 1.5, 2.5], 0.6), Phong(0.2, [0.3, 0.4, 0.5], 30.0),
+              BlinnPhong([0.1, 0.2, 0.3], 0.5, [5.0, 50.0, 0.0]), OrenNayar([0.3, 0.5, 0.7], 0.4),
               CookTorrance(0.0, [0.2, 0.3, 0.4], "beckmann", ior=[0.18, 0.42, 1.37],
                            k=[3.42, 2.35, 1.77]),
               Hybrid(Lambert(0.4), CoefficientMatrix(zb, res, quantity="f"))]
