@@ -134,6 +134,27 @@ class Evaluator:
         """Number of channels of the matrix."""
         return self.cm.channels
 
+    def separable(self) -> dict[str, Any] | None:
+        """Return the separable form the fused kernel evaluates, or None for a dense matrix.
+
+        For other evaluators of the same form (e.g. a renderer's kernels): ``kind`` (the
+        basis' kind: ``"zernike"``, ``"harmonics"``, ``"harmonics-even"`` or ``"sh"``, whose
+        a(w), x(w), g(w) are in the module notes), ``coef`` (blocks, channels, K) and ``tri``
+        (blocks,), the packed symmetric parts and their lengths, ``coefa`` and ``tria`` the
+        antisymmetric parts (lengths 0 for a reciprocal matrix), as
+        :func:`_chebyshev_blocks` packs them; ``fcos`` (q = f cos cos) and ``min_cos``.
+        The arrays are read-only views.
+        """
+        if not self.cm.is_isotropic:
+            return None
+        out = {"kind": self.cm.basis.kind, "coef": self._coef, "tri": self._tri,
+               "coefa": self._coefa, "tria": self._tria, "fcos": self.fcos,
+               "min_cos": self.min_cos}
+        for k in ("coef", "tri", "coefa", "tria"):
+            out[k] = out[k].view()
+            out[k].flags.writeable = False
+        return out
+
     def __call__(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
         """Evaluate the BRDF, as :meth:`basis.CoefficientMatrix.eval` (same shapes, same zeros).
 
