@@ -196,3 +196,68 @@ def test_run_parallel_nested_call_runs_inline_and_errors_propagate():
     if numba.config.NUMBA_NUM_THREADS >= 2:
         with pytest.raises(ValueError, match="pool thread"):
             run_parallel(bad, 100)
+
+
+# -- what LLVM emits for a wide-vector CPU ------------------------------------------------------
+# Compiled (never run) in a child process whose numba targets the named CPU; prints the count
+# of packed-double instructions on zmm and on ymm registers for a kernel of lane operations
+# and for a loop kernel marked with wide_loops.
+_CROSS = r"""
+import re
+import numba
+from basis.jit import lane_recur, lane_transpose, wide_loops
+
+@numba.njit(cache=False)
+def lanes(dst, x, p1, p2, tile):
+    for i in range(0, x.size, 8):
+        lane_recur(dst, i, x, i, p1, i, p2, i, 1.5, 0.25)
+    lane_transpose(tile, 0, 8, dst, 0)
+
+@numba.njit(cache=False)
+def loops(m, a, s):
+    wide_loops()
+    for j in range(m.shape[0]):
+        for k in range(m.shape[1]):
+            m[j, k] = m[j, k] + a[j] * s[k]
+
+f1, f2 = numba.float64[::1], numba.float64[:, ::1]
+for k, sig in ((lanes, (f1, f1, f1, f1, f1)), (loops, (f2, f1, f1))):
+    k.compile(sig)
+    asm = k.inspect_asm(sig)
+    print(*(len(re.findall(r"\tv\w+pd\t[^\n]*%" + r, asm)) for r in ("zmm", "ymm")))
+"""
+
+
+def _cross_compile(cpu: str, tmp_path) -> list[tuple[int, int]]:
+    import os
+    import platform
+    import subprocess
+    import sys
+
+    import pytest
+
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        pytest.skip("numba compiles for the host's architecture: x86-64 needs an x86-64 host")
+    env = dict(os.environ, NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES="",
+               NUMBA_CACHE_DIR=str(tmp_path))
+    r = subprocess.run([sys.executable, "-c", _CROSS], env=env, capture_output=True,
+                       text=True, timeout=300)
+    if r.returncode and "No available targets" in r.stderr:
+        pytest.skip("this LLVM build has no x86 target")
+    assert r.returncode == 0, r.stderr[-2000:]
+    return [tuple(int(v) for v in line.split()) for line in r.stdout.split("\n") if line]
+
+
+def test_lane_operations_use_zmm_registers_on_avx512(tmp_path):
+    # Skylake-SP: LLVM's tuning prefers 256-bit vectors there, yet explicit <8 x double>
+    # stays whole (numba marks no "min-legal-vector-width"), and wide_loops lifts the
+    # loop vectoriser to 512 bits. Without it that loop ran on ymm registers only.
+    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm) = _cross_compile("skylake-avx512", tmp_path)
+    assert lane_zmm > 0 and lane_ymm == 0, (lane_zmm, lane_ymm)
+    assert loop_zmm > 0, (loop_zmm, loop_ymm)
+
+
+def test_lane_operations_use_ymm_pairs_on_avx2(tmp_path):
+    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm) = _cross_compile("haswell", tmp_path)
+    assert lane_zmm == 0 and lane_ymm > 0, (lane_zmm, lane_ymm)
+    assert loop_zmm == 0 and loop_ymm > 0, (loop_zmm, loop_ymm)
