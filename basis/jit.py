@@ -243,26 +243,25 @@ def lane_mul(typingctx, dst, di, x, xi, y, yi):
 
 
 def _transpose_store(context, builder, aty, d, idi, st, rows):
-    # rows[r] holds entry r of lanes 0..7: store lane j's eight entries at d[idi + j * st:]
+    # rows[r] holds entry r of lanes 0..LANES-1: store lane j's LANES entries at d[idi + j * st:]
+    # in log2(LANES) rounds of shuffles; the round of step s pairs rows r and r + s (r & s = 0)
+    # and interleaves blocks of s entries, after which row j holds lane j
     ity = idi.type
-    lo, hi = [0, 8, 2, 10, 4, 12, 6, 14], [1, 9, 3, 11, 5, 13, 7, 15]
-    a = []
-    for r in range(0, LANES, 2):
-        a += [_shuffle(builder, rows[r], rows[r + 1], lo),
-              _shuffle(builder, rows[r], rows[r + 1], hi)]
-    lo2, hi2 = [0, 1, 8, 9, 4, 5, 12, 13], [2, 3, 10, 11, 6, 7, 14, 15]
-    bq = {}
-    for g in (0, 4):  # a[g..g+3]: lanes (even, odd) of rows g/2*... pairs
-        bq[(g, 0)] = _shuffle(builder, a[g], a[g + 2], lo2)      # lanes 0, 4
-        bq[(g, 2)] = _shuffle(builder, a[g], a[g + 2], hi2)      # lanes 2, 6
-        bq[(g, 1)] = _shuffle(builder, a[g + 1], a[g + 3], lo2)  # lanes 1, 5
-        bq[(g, 3)] = _shuffle(builder, a[g + 1], a[g + 3], hi2)  # lanes 3, 7
-    lo4, hi4 = [0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15]
-    for j in range(4):
-        for lane, mask in ((j, lo4), (j + 4, hi4)):
-            v = _shuffle(builder, bq[(0, j)], bq[(4, j)], mask)
-            off = builder.add(idi, builder.mul(st, ir.Constant(ity, lane)))
-            _store(context, builder, aty, d, off, v)
+    cur = list(rows)
+    s = 1
+    while s < LANES:
+        lo = [i if i & s == 0 else LANES + i - s for i in range(LANES)]
+        hi = [i + s if i & s == 0 else LANES + i for i in range(LANES)]
+        nxt = list(cur)
+        for r in range(LANES):
+            if r & s == 0:
+                nxt[r] = _shuffle(builder, cur[r], cur[r + s], lo)
+                nxt[r + s] = _shuffle(builder, cur[r], cur[r + s], hi)
+        cur = nxt
+        s *= 2
+    for lane, v in enumerate(cur):
+        off = builder.add(idi, builder.mul(st, ir.Constant(ity, lane)))
+        _store(context, builder, aty, d, off, v)
 
 
 @intrinsic
@@ -291,7 +290,8 @@ def lane_transpose(typingctx, dst, di, stride, src, si):
     def codegen(context, builder, signature, args):
         t = signature.args
         d, idi, st, s, isi = args
-        rows = [_load(context, builder, t[3], s, builder.add(isi, ir.Constant(isi.type, 8 * r)))
+        rows = [_load(context, builder, t[3], s,
+                      builder.add(isi, ir.Constant(isi.type, LANES * r)))
                 for r in range(LANES)]
         _transpose_store(context, builder, t[0], d, idi, st, rows)
         return context.get_dummy_value()
