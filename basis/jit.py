@@ -145,8 +145,11 @@ def wide_loops(typingctx):
     def codegen(context, builder, signature, args):
         attrs = builder.function.attributes
         name = '"prefer-vector-width"="512"'
-        attrs._known = attrs._known | {name}  # llvmlite lists only its own attribute names
-        attrs.add(name)
+        try:
+            attrs._known = attrs._known | {name}  # llvmlite lists only its own attribute names
+            attrs.add(name)
+        except (AttributeError, TypeError, ValueError):
+            pass  # an llvmlite that refuses it: the loops keep LLVM's default width
         return context.get_dummy_value()
 
     return types.void(), codegen
