@@ -21,6 +21,9 @@ from basis.jit import (
     lane_unit,
 )
 
+#: Row stride of the transposed tiles in the tests: rows longer than a tile, offset 3.
+_STRIDE = LANES + 3
+
 
 @numba.njit(cache=False)
 def _run(out, x, p1, p2, cc, ss, seed, c1, s1, sn, tile, src, dirs, unit):
@@ -28,7 +31,7 @@ def _run(out, x, p1, p2, cc, ss, seed, c1, s1, sn, tile, src, dirs, unit):
     lane_scaled(out, LANES, 1.5, x, 0, p1, LANES)
     lane_mul(out, 2 * LANES, x, 0, p1, LANES)
     lane_rotate(cc, ss, seed, LANES, c1, s1, 0.75, sn)
-    lane_transpose(tile, 3, 11, src, LANES)
+    lane_transpose(tile, 3, _STRIDE, src, LANES)
     return lane_unit(dirs, 1, unit[0], unit[1], unit[2], unit[3], 1e-3)
 
 
@@ -38,11 +41,11 @@ def test_lane_operations_give_the_scalar_bits(rng):
     x, p1, p2 = rng.random(LANES), rng.random(2 * LANES), rng.random(LANES)
     cc, ss, seed = rng.random(2 * LANES), rng.random(2 * LANES), rng.random(2 * LANES)
     c1, sn = rng.random(LANES), rng.random(LANES)
-    src = rng.random(10 * LANES)
+    src = rng.random((LANES + 2) * LANES)
     dirs = rng.normal(size=(2 + LANES, 3))
     dirs[3] = [0.0, 0.0, 1.0]  # the pole: azimuth (1, 0)
     dirs[4] = [1e-9, 0.0, 1.0]  # 0 < sin(theta) < 1e-3: flagged
-    out, tile, unit = np.zeros(3 * LANES), np.zeros((8, 11)), np.zeros((4, LANES))
+    out, tile, unit = np.zeros(3 * LANES), np.zeros((LANES, _STRIDE)), np.zeros((4, LANES))
     cc0, ss0, seed0 = cc.copy(), ss.copy(), seed.copy()
     flagged = _run(out, x, p1, p2, cc, ss, seed, c1, c1[::-1].copy(), sn, tile, src, dirs, unit)
     s1 = c1[::-1]
@@ -55,7 +58,7 @@ def test_lane_operations_give_the_scalar_bits(rng):
     flat = tile.reshape(-1)
     for r in range(LANES):
         for j in range(LANES):
-            assert flat[3 + 11 * j + r] == src[LANES + LANES * r + j]
+            assert flat[3 + _STRIDE * j + r] == src[LANES + LANES * r + j]
     d = dirs[1:1 + LANES]
     r = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
     xx, yy, zz = d[:, 0] / r, d[:, 1] / r, d[:, 2] / r
@@ -78,7 +81,7 @@ def _run_more(out, x, p1, p2, ang, c1, s1, tile, ix, iy, f, dirs, disk):
     lane_muladd(out, 3 * LANES, x, 0, p1, LANES, p2, 0, p1, 0, -1.0)
     lane_copy(out, 4 * LANES, p2, 0)
     lane_turn(ang, 2 * LANES, 0, 3 * LANES, LANES, c1, s1)
-    lane_tile(tile, 3, 11, p1, ix, ang, iy, f, 1)
+    lane_tile(tile, 3, _STRIDE, p1, ix, ang, iy, f, 1)
     lane_disk(dirs, 1, disk[0], disk[1], disk[2], disk[3])
 
 
@@ -93,7 +96,7 @@ def test_more_lane_operations_give_the_scalar_bits(rng):
     dirs[1] = [0.0, 0.0, 1.0]  # the pole: azimuth (1, 0), rho = 0
     dirs[2] = [0.3, -0.4, -0.7]  # z <= -1/2: rho^2 = 1 - z
     dirs[3] *= 1 + 1e-7  # not quite unit: renormalised
-    out, tile, disk = np.zeros(5 * LANES), np.zeros((8, 11)), np.zeros((4, LANES))
+    out, tile, disk = np.zeros(5 * LANES), np.zeros((LANES, _STRIDE)), np.zeros((4, LANES))
     ang0 = ang.copy()
     _run_more(out, x, p1, p2, ang, c1, s1, tile, ix, iy, f, dirs, disk)
     q = p1[LANES:]
@@ -110,7 +113,7 @@ def test_more_lane_operations_give_the_scalar_bits(rng):
         k = 1 + r
         v = (f[k] * p1[ix[k]:ix[k] + LANES]) * ang[iy[k]:iy[k] + LANES]
         for j in range(LANES):
-            assert flat[3 + 11 * j + r] == v[j]
+            assert flat[3 + _STRIDE * j + r] == v[j]
     d = dirs[1:1 + LANES]
     r = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
     xx, yy, zz = d[:, 0] / r, d[:, 1] / r, d[:, 2] / r
