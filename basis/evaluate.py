@@ -359,17 +359,20 @@ def _geometry_codegen(context, builder, signature, args):
         return ir.Constant(ir.VectorType(i32, LANES), idx)
 
     def direction(aty, a):
-        # (x, y, z) of directions p..p+7: three loads of eight, de-interleaved
+        # (x, y, z) of directions p..p+LANES-1: three loads of LANES, de-interleaved (entry
+        # 3 j + c of the three is component c of lane j: two shuffles, the first from the
+        # first two loads, the second adding what lies in the third)
         base = builder.mul(p, ir.Constant(p.type, 3))
-        v = [_load(context, builder, aty, a, builder.add(base, ir.Constant(p.type, 8 * k)))
-             for k in range(3)]
-        x = builder.shuffle_vector(v[0], v[1], mask([0, 3, 6, 9, 12, 15, 0, 0]))
-        x = builder.shuffle_vector(x, v[2], mask([0, 1, 2, 3, 4, 5, 10, 13]))
-        y = builder.shuffle_vector(v[0], v[1], mask([1, 4, 7, 10, 13, 0, 0, 0]))
-        y = builder.shuffle_vector(y, v[2], mask([0, 1, 2, 3, 4, 8, 11, 14]))
-        z = builder.shuffle_vector(v[0], v[1], mask([2, 5, 8, 11, 14, 0, 0, 0]))
-        z = builder.shuffle_vector(z, v[2], mask([0, 1, 2, 3, 4, 9, 12, 15]))
-        return x, y, z
+        v = [_load(context, builder, aty, a,
+                   builder.add(base, ir.Constant(p.type, LANES * k))) for k in range(3)]
+        out = []
+        for c in range(3):
+            idx = [3 * j + c for j in range(LANES)]
+            u = builder.shuffle_vector(v[0], v[1], mask([i if i < 2 * LANES else 0
+                                                         for i in idx]))
+            out.append(builder.shuffle_vector(u, v[2], mask(
+                [j if i < 2 * LANES else i - LANES for j, i in enumerate(idx)])))
+        return tuple(out)
 
     def fabs(v):
         return _fcall(builder, "llvm.fabs", v)

@@ -64,6 +64,8 @@ import mitsuba as mi  # noqa: E402
 
 mi.set_variant("llvm_ad_rgb")
 
+from _machine import header, tag  # noqa: E402 - the machine: CPU, features, vector width
+
 import compress.mitsuba as cmi  # noqa: E402
 from compress.mitsuba._sampling import _lobe_sampler  # noqa: E402
 from project import FittedModel  # noqa: E402
@@ -231,7 +233,8 @@ def main() -> None:
     bins = tuple(int(b) for b in args.bins.split(","))
     angles = [float(a) for a in args.angles.split(",")]
     n = args.samples
-    print(f"samples per call {n}, table bins {bins}, variant {mi.variant()}")
+    print(header())
+    print(f"On {tag()}: samples per call {n}, table bins {bins}, variant {mi.variant()}")
     for path in files:
         tab = FittedModel("tabulated", tabulate(read_rgl(path), bins).params)
         ours = cmi.bsdf(tab, incident="camera")
