@@ -44,6 +44,7 @@ import mitsuba as mi
 import numpy as np
 
 from basis import CoefficientMatrix
+from project.measured.mbsdf import MBSDFBRDF
 
 from ._traced_matrix import Traced, matrix_form
 
@@ -87,6 +88,8 @@ def traced_eval(rep: Any) -> Traced | None:
         return model
     if hasattr(rep, "lookup_table") and hasattr(rep, "interpolation"):
         return _merl(rep)
+    if isinstance(rep, MBSDFBRDF):
+        return _mbsdf(rep.table)
     family = getattr(rep, "family", None)
     params = getattr(rep, "params", None)
     if not isinstance(family, str) or params is None:
@@ -158,6 +161,46 @@ def _merl(rep: Any) -> Traced:
             hi = dr.lerp(dr.lerp(at(1, 0, k0), at(1, 0, k1), tw),
                          dr.lerp(at(1, 1, k0), at(1, 1, k1), tw), tv)
             out.append(dr.lerp(lo, hi, tu))
+        return out
+    return f
+
+
+# -- NVIDIA MDL measured BSDF grids ---------------------------------------------------------
+
+def _mbsdf(table: Any) -> Traced:
+    """Return the lookup of an MDL grid (project.measured.MBSDFBRDF, family "grid").
+
+    The MDL SDK's filtering, as ``project.measured.mbsdf`` evaluates it: linear between texel
+    centres over (delta_phi / pi, 2 theta_out / pi, 2 theta_in / pi), clamped at the edges;
+    negative values (measurement noise) evaluate to 0.
+    """
+    t = np.asarray(table, dtype=np.float64)
+    nt, nphi, nch = t.shape[0], t.shape[2], t.shape[3]
+    data = _device(t)
+
+    def cell(x: Any, n: int) -> tuple[Any, Any, Any]:
+        fx = dr.floor(x)
+        i0 = mi.UInt32(dr.minimum(dr.maximum(fx, 0.0), n - 1.0))
+        i1 = mi.UInt32(dr.minimum(dr.maximum(fx + 1.0, 0.0), n - 1.0))
+        return i0, i1, x - fx
+
+    def f(wi: Any, wo: Any) -> list:
+        theta_in = dr.atan2(dr.sqrt(wi.x * wi.x + wi.y * wi.y), wi.z)
+        theta_out = dr.atan2(dr.sqrt(wo.x * wo.x + wo.y * wo.y), wo.z)
+        dphi = dr.abs(dr.atan2(wo.y, wo.x) - dr.atan2(wi.y, wi.x))
+        dphi = dr.select(dphi > math.pi, 2.0 * math.pi - dphi, dphi)
+        k0, k1, tx = cell(dr.minimum(dphi * (1.0 / math.pi), 1.0) * nphi - 0.5, nphi)
+        j0, j1, ty = cell(dr.minimum(theta_out * (1.0 / _HALF_PI), 1.0) * nt - 0.5, nt)
+        i0, i1, tz = cell(dr.minimum(theta_in * (1.0 / _HALF_PI), 1.0) * nt - 0.5, nt)
+        out = []
+        for c in range(nch):
+            def at(i: Any, j: Any, k: Any, c: int = c) -> Any:
+                return _gather(data, ((i * nt + j) * nphi + k) * nch + c)
+            lo = dr.lerp(dr.lerp(at(i0, j0, k0), at(i0, j0, k1), tx),
+                         dr.lerp(at(i0, j1, k0), at(i0, j1, k1), tx), ty)
+            hi = dr.lerp(dr.lerp(at(i1, j0, k0), at(i1, j0, k1), tx),
+                         dr.lerp(at(i1, j1, k0), at(i1, j1, k1), tx), ty)
+            out.append(dr.maximum(dr.lerp(lo, hi, tz), 0.0))
         return out
     return f
 
@@ -739,4 +782,5 @@ _FAMILIES: dict[str, Callable[[dict], Traced]] = {
     "factored": _factored,
     "tucker": _tucker,
     "tabulated": _tabulated,
+    "grid": lambda params: _mbsdf(params["table"]),
 }
