@@ -6,7 +6,7 @@ BIN := $(VENV)/bin
 # read-only, under the user's cache folder): no NUMBA_CACHE_DIR here, so `make demo`, the
 # console script, python -m and notebooks all share one cache
 
-.PHONY: demo test bench lint clean clean-cache
+.PHONY: demo test docs bench lint clean clean-cache
 
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
@@ -25,6 +25,17 @@ demo: $(VENV)/.installed
 
 test: $(VENV)/.installed-test
 	$(BIN)/python -m pytest
+
+$(VENV)/.installed-docs: pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet -e '.[docs]'
+	touch $(VENV)/.installed $@
+
+# the site in docs/_build/html: Sphinx with warnings as errors, offline; then checks of the
+# built pages (every public name indexed, nothing remote, no console errors in Chromium)
+docs: $(VENV)/.installed-docs
+	$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	SCATMODES_DOCS_SITE=docs/_build/html $(BIN)/python -m pytest -q -p no:cacheprovider \
+		tests/test_docs.py
 
 # benchmark scripts (not timed tests): they need the peers in the [bench] extra
 bench: $(VENV)/.installed-test
@@ -47,4 +58,4 @@ clean-cache:
 	find basis project compress -path '*/__pycache__/*' \( -name '*.nbi' -o -name '*.nbc' \) -delete
 
 clean: clean-cache
-	rm -rf $(VENV) .pytest_cache scatmodes-out
+	rm -rf $(VENV) .pytest_cache scatmodes-out docs/_build docs/api

@@ -134,6 +134,27 @@ class Evaluator:
         """Number of channels of the matrix."""
         return self.cm.channels
 
+    def separable(self) -> dict[str, Any] | None:
+        """Return the separable form the fused kernel evaluates, or None for a dense matrix.
+
+        For other evaluators of the same form (e.g. a renderer's kernels): ``kind`` (the
+        basis' kind: ``"zernike"``, ``"harmonics"``, ``"harmonics-even"`` or ``"sh"``, whose
+        a(w), x(w), g(w) are in the module notes), ``coef`` (blocks, channels, K) and ``tri``
+        (blocks,), the packed symmetric parts and their lengths, ``coefa`` and ``tria`` the
+        antisymmetric parts (lengths 0 for a reciprocal matrix), as
+        :func:`_chebyshev_blocks` packs them; ``fcos`` (q = f cos cos) and ``min_cos``.
+        The arrays are read-only views.
+        """
+        if not self.cm.is_isotropic:
+            return None
+        out = {"kind": self.cm.basis.kind, "coef": self._coef, "tri": self._tri,
+               "coefa": self._coefa, "tria": self._tria, "fcos": self.fcos,
+               "min_cos": self.min_cos}
+        for k in ("coef", "tri", "coefa", "tria"):
+            out[k] = out[k].view()
+            out[k].flags.writeable = False
+        return out
+
     def __call__(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
         """Evaluate the BRDF, as :meth:`basis.CoefficientMatrix.eval` (same shapes, same zeros).
 
@@ -338,17 +359,20 @@ def _geometry_codegen(context, builder, signature, args):
         return ir.Constant(ir.VectorType(i32, LANES), idx)
 
     def direction(aty, a):
-        # (x, y, z) of directions p..p+7: three loads of eight, de-interleaved
+        # (x, y, z) of directions p..p+LANES-1: three loads of LANES, de-interleaved (entry
+        # 3 j + c of the three is component c of lane j: two shuffles, the first from the
+        # first two loads, the second adding what lies in the third)
         base = builder.mul(p, ir.Constant(p.type, 3))
-        v = [_load(context, builder, aty, a, builder.add(base, ir.Constant(p.type, 8 * k)))
-             for k in range(3)]
-        x = builder.shuffle_vector(v[0], v[1], mask([0, 3, 6, 9, 12, 15, 0, 0]))
-        x = builder.shuffle_vector(x, v[2], mask([0, 1, 2, 3, 4, 5, 10, 13]))
-        y = builder.shuffle_vector(v[0], v[1], mask([1, 4, 7, 10, 13, 0, 0, 0]))
-        y = builder.shuffle_vector(y, v[2], mask([0, 1, 2, 3, 4, 8, 11, 14]))
-        z = builder.shuffle_vector(v[0], v[1], mask([2, 5, 8, 11, 14, 0, 0, 0]))
-        z = builder.shuffle_vector(z, v[2], mask([0, 1, 2, 3, 4, 9, 12, 15]))
-        return x, y, z
+        v = [_load(context, builder, aty, a,
+                   builder.add(base, ir.Constant(p.type, LANES * k))) for k in range(3)]
+        out = []
+        for c in range(3):
+            idx = [3 * j + c for j in range(LANES)]
+            u = builder.shuffle_vector(v[0], v[1], mask([i if i < 2 * LANES else 0
+                                                         for i in idx]))
+            out.append(builder.shuffle_vector(u, v[2], mask(
+                [j if i < 2 * LANES else i - LANES for j, i in enumerate(idx)])))
+        return tuple(out)
 
     def fabs(v):
         return _fcall(builder, "llvm.fabs", v)

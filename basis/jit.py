@@ -120,6 +120,41 @@ def writable(a: np.ndarray) -> np.ndarray:
     return a if a.flags.writeable else a.copy()
 
 
+# -- vector width -------------------------------------------------------------------------------
+# What LLVM emits for the host decides the width: numba compiles for the host CPU and its
+# features (or NUMBA_CPU_NAME / NUMBA_CPU_FEATURES), and caches a kernel per CPU and features.
+# The <8 x double> operations below are one zmm register on a CPU with avx512f and two ymm
+# halves on AVX2. (LLVM splits 512-bit vectors into 256-bit halves only in a function whose
+# "min-legal-vector-width" attribute is below 512, as clang marks functions without 512-bit
+# intrinsics; numba sets no such attribute, and tests/basis/test_jit.py checks for zmm in
+# the lane kernels compiled for Skylake-SP.) LLVM's loop vectoriser is another matter: on
+# Intel's AVX-512 server cores (Skylake-SP to Sapphire Rapids) its tuning "prefer-256-bit"
+# keeps loops at four doubles, for the lower clock that 512-bit instructions cost there.
+
+
+@intrinsic
+def wide_loops(typingctx):
+    """Let LLVM vectorise the calling kernel's loops at the full width of the CPU.
+
+    Marks the function ``"prefer-vector-width"="512"``: on an AVX-512 CPU whose tuning
+    prefers 256-bit vectors (Intel Skylake-SP to Sapphire Rapids), its loops then run eight
+    doubles per instruction instead of four; elsewhere (AVX2, or AVX-512 CPUs that prefer
+    512 bits already) the code is the same. For loops whose iterations are independent (no
+    reduction across them), so that the width cannot change a bit of the result.
+    """
+    def codegen(context, builder, signature, args):
+        attrs = builder.function.attributes
+        name = '"prefer-vector-width"="512"'
+        try:
+            attrs._known = attrs._known | {name}  # llvmlite lists only its own attribute names
+            attrs.add(name)
+        except (AttributeError, TypeError, ValueError):
+            pass  # an llvmlite that refuses it: the loops keep LLVM's default width
+        return context.get_dummy_value()
+
+    return types.void(), codegen
+
+
 # -- eight-lane vector operations ---------------------------------------------------------------
 # numba runs LLVM's loop vectoriser but not its SLP vectoriser, and the loop vectoriser gives
 # up on short loops over scratch arrays it cannot prove disjoint; these intrinsics emit the
@@ -128,7 +163,13 @@ def writable(a: np.ndarray) -> np.ndarray:
 # Every product and difference is a separate IEEE operation in the order written (no fused
 # multiply-add), so the values are the bits of the scalar code with the same expression.
 
-#: Lanes of the vector operations below.
+#: Lanes of the vector operations below: one zmm register on a CPU with avx512f, two ymm
+#: halves on AVX2. Four lanes (one ymm) on an AVX2 machine (AMD EPYC) were 4-14 % slower for
+#: the harmonics (L = 16, 32), the Zernike functions (order 16) and a coefficient matrix
+#: (order 8), and level (within the spread) for Zernike order 8, in CPU time of one thread:
+#: each operation's two independent halves presumably hide the latency of the chains of
+#: dependent steps. The operations work for any power of two (the tests of the bases and
+#: of the evaluator give the same bits at 4 lanes).
 LANES = 8
 
 _V8 = ir.VectorType(ir.DoubleType(), LANES)
@@ -211,26 +252,25 @@ def lane_mul(typingctx, dst, di, x, xi, y, yi):
 
 
 def _transpose_store(context, builder, aty, d, idi, st, rows):
-    # rows[r] holds entry r of lanes 0..7: store lane j's eight entries at d[idi + j * st:]
+    # rows[r] holds entry r of lanes 0..LANES-1: store lane j's LANES entries at d[idi + j * st:]
+    # in log2(LANES) rounds of shuffles; the round of step s pairs rows r and r + s (r & s = 0)
+    # and interleaves blocks of s entries, after which row j holds lane j
     ity = idi.type
-    lo, hi = [0, 8, 2, 10, 4, 12, 6, 14], [1, 9, 3, 11, 5, 13, 7, 15]
-    a = []
-    for r in range(0, LANES, 2):
-        a += [_shuffle(builder, rows[r], rows[r + 1], lo),
-              _shuffle(builder, rows[r], rows[r + 1], hi)]
-    lo2, hi2 = [0, 1, 8, 9, 4, 5, 12, 13], [2, 3, 10, 11, 6, 7, 14, 15]
-    bq = {}
-    for g in (0, 4):  # a[g..g+3]: lanes (even, odd) of rows g/2*... pairs
-        bq[(g, 0)] = _shuffle(builder, a[g], a[g + 2], lo2)      # lanes 0, 4
-        bq[(g, 2)] = _shuffle(builder, a[g], a[g + 2], hi2)      # lanes 2, 6
-        bq[(g, 1)] = _shuffle(builder, a[g + 1], a[g + 3], lo2)  # lanes 1, 5
-        bq[(g, 3)] = _shuffle(builder, a[g + 1], a[g + 3], hi2)  # lanes 3, 7
-    lo4, hi4 = [0, 1, 2, 3, 8, 9, 10, 11], [4, 5, 6, 7, 12, 13, 14, 15]
-    for j in range(4):
-        for lane, mask in ((j, lo4), (j + 4, hi4)):
-            v = _shuffle(builder, bq[(0, j)], bq[(4, j)], mask)
-            off = builder.add(idi, builder.mul(st, ir.Constant(ity, lane)))
-            _store(context, builder, aty, d, off, v)
+    cur = list(rows)
+    s = 1
+    while s < LANES:
+        lo = [i if i & s == 0 else LANES + i - s for i in range(LANES)]
+        hi = [i + s if i & s == 0 else LANES + i for i in range(LANES)]
+        nxt = list(cur)
+        for r in range(LANES):
+            if r & s == 0:
+                nxt[r] = _shuffle(builder, cur[r], cur[r + s], lo)
+                nxt[r + s] = _shuffle(builder, cur[r], cur[r + s], hi)
+        cur = nxt
+        s *= 2
+    for lane, v in enumerate(cur):
+        off = builder.add(idi, builder.mul(st, ir.Constant(ity, lane)))
+        _store(context, builder, aty, d, off, v)
 
 
 @intrinsic
@@ -259,7 +299,8 @@ def lane_transpose(typingctx, dst, di, stride, src, si):
     def codegen(context, builder, signature, args):
         t = signature.args
         d, idi, st, s, isi = args
-        rows = [_load(context, builder, t[3], s, builder.add(isi, ir.Constant(isi.type, 8 * r)))
+        rows = [_load(context, builder, t[3], s,
+                      builder.add(isi, ir.Constant(isi.type, LANES * r)))
                 for r in range(LANES)]
         _transpose_store(context, builder, t[0], d, idi, st, rows)
         return context.get_dummy_value()

@@ -223,6 +223,12 @@ def _disk(dirs, i):
 #: tables filled once per part); a multiple of LANES.
 _TASK = 128 * LANES
 
+# _zernike_lanes keeps R of two rows (n and n - 2) and needs every tile of LANES consecutive
+# columns to span at most four rows, which holds up to eight lanes (rows 0..3 hold ten
+# columns); more lanes need a third buffer of R
+if LANES > 8:
+    raise RuntimeError(f"the Zernike lane kernel supports at most 8 lanes, got {LANES}")
+
 
 @njit
 def _zernike_point(dirs, i, order, coef, norm, row):

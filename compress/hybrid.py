@@ -23,6 +23,8 @@ from basis.validation import nonneg_int
 from project.crossval import cross_validate
 from project.measurements import FOLDS
 
+from .truncate import unique_coefficients
+
 __all__ = ["Hybrid", "hybrid"]
 
 
@@ -88,8 +90,13 @@ class Hybrid:
 
     @property
     def nbytes(self) -> int:
-        """Bytes of what is stored: the lobe's parameters and the residual's coefficients."""
-        return int(getattr(self.lobe, "nbytes", 0)) + self.residual.nbytes
+        """Bytes stored at float64: the lobe's parameters and the residual's unique coefficients.
+
+        The residual counts as :func:`compress.unique_coefficients` (symmetric blocks stored
+        once), as in a file of :func:`compress.save`, not the memory its blocks hold
+        (:attr:`basis.CoefficientMatrix.nbytes`).
+        """
+        return int(getattr(self.lobe, "nbytes", 0)) + 8 * unique_coefficients(self.residual)
 
     def eval(self, wi: ArrayLike, wo: ArrayLike) -> NDArray[np.float64]:
         """Evaluate f(w_i, w_o) = lobe + residual in 1/sr.
@@ -216,7 +223,8 @@ def hybrid(brdf: Any, order: int, *, lobe: Any = None, kind: str = "zernike",
     res = project.project(_Residual(brdf, lobe), b, **project_kwargs)
     info = {"source": repr(brdf), "order": order, "kind": kind,
             "residual_truncation_error": res.info.get("truncation_error"),
-            "lobe_bytes": int(getattr(lobe, "nbytes", 0)), "residual_bytes": res.nbytes}
+            "lobe_bytes": int(getattr(lobe, "nbytes", 0)),
+            "residual_bytes": 8 * unique_coefficients(res)}
     out = Hybrid(lobe, res, info)
     out.info["bytes"] = out.nbytes
     if nonneg_int(error_samples, "error_samples"):
@@ -253,7 +261,8 @@ def _hybrid_samples(meas: project.Measurements, order: int, b: basis.Basis, lobe
             warnings.filterwarnings("ignore", message="fit predicts held-out samples")
             res = project.fit(res_meas, b, isotropic=isotropic, **fit_kwargs)
         info = {"source": repr(meas), "order": order, "kind": kind,
-                "lobe_bytes": int(getattr(lb, "nbytes", 0)), "residual_bytes": res.nbytes,
+                "lobe_bytes": int(getattr(lb, "nbytes", 0)),
+                "residual_bytes": 8 * unique_coefficients(res),
                 "residual_validation_error": res.info.get("validation_error")}
         out = Hybrid(lb, res, info)
         out.info["bytes"] = out.nbytes

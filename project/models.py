@@ -150,6 +150,19 @@ class _Analytic(BRDF):
     def _out(self, f: NDArray, n: int) -> NDArray:
         return np.broadcast_to(f, (n, self.channels))
 
+    @property
+    def arrays(self) -> dict[str, NDArray]:
+        """The parameters as given, each a read-only (1,) or (channels,) float64 array.
+
+        For other evaluators of the same formulas (e.g. a renderer's kernels).
+        """
+        out = {}
+        for name, v in self._raw.items():
+            a = np.array(v, dtype=np.float64)
+            a.flags.writeable = False
+            out[name] = a
+        return out
+
     #: Names of keyword options (attributes) shown by ``repr``.
     _options: tuple[str, ...] = ()
 

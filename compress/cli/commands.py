@@ -360,7 +360,7 @@ def _describe(cm: Any) -> str:
 
     n = unique_coefficients(cm)
     return (f"{cm.basis!r}, quantity {cm.quantity}, {cm.channels} channel(s), {n} "
-            f"coefficients ({8 * n} bytes)")
+            f"coefficients ({8 * n:,} bytes stored as float64)")
 
 
 def _fmt(x: Any) -> str:
@@ -659,8 +659,8 @@ def _fit_family(args: argparse.Namespace, meas: Any, out: Path) -> int:
     save(model, out)
     i = model.info
     l2, se = i.get("l2"), i.get("l2_stderr")
-    print(f"wrote {out}: {model!r}; {model.nparams} parameters ({model.nbytes} bytes), "
-          f"{model.channels} channel(s)")
+    print(f"wrote {out}: {model!r}; {model.nparams} parameters ({model.nbytes:,} bytes stored "
+          f"as float64), {model.channels} channel(s)")
     print(f"fitted to {len(meas)} samples: best of {i['restarts']} restarts (restart "
           f"{i['best_restart']}, {'converged' if i['converged'] else 'not converged'}), l2 error "
           f"{i['fit_l2']:.3g} on the fitted samples, {i['seconds']:.2f} s")

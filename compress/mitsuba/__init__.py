@@ -4,7 +4,7 @@
 >>> import compress.mitsuba
 >>> compress.mitsuba.register()                                     # doctest: +SKIP
 >>> mat = mi.load_dict({"type": "scatmodes", "filename": "rep.h5"})  # doctest: +SKIP
->>> img = compress.mitsuba.render(scene)                            # doctest: +SKIP
+>>> img = mi.render(scene)                                          # doctest: +SKIP
 
 :func:`register` registers the type for the current variant (``llvm_ad_rgb`` is set when
 none is, ``scalar_rgb`` without LLVM); the parameter ``filename`` is any file written by
@@ -31,12 +31,32 @@ The flags are ``GlossyReflection | FrontSide`` (one component). Negative values 
 truncated expansion are clamped to 0 and counted in the object's ``stats``
 (:class:`ClampStats`); :func:`negative_fraction` measures the same on random pairs.
 
-Evaluation and sampling are numpy/numba code, called once per call of ``eval``, ``pdf``,
-``eval_pdf`` or ``sample``: one wavefront of directions in the JIT variants (the Dr.Jit arrays
-are converted with ``numpy`` once and the result wrapped back), one sample in the scalar
-variants (Mitsuba's design). Mitsuba's JIT variants trace the path tracer's loop symbolically
-by default, where arrays hold no values yet: render such scenes with :func:`render` (or inside
-:func:`evaluated`), which switches Dr.Jit to evaluated loops and calls.
+Evaluation and sampling
+-----------------------
+In the JIT variants (LLVM, CUDA) ``eval``, ``pdf``, ``eval_pdf`` and ``sample`` are Dr.Jit
+code (:mod:`compress.mitsuba._traced`, :mod:`compress.mitsuba._traced_sampling`): Mitsuba
+traces them symbolically into its kernels like its own plugins, so scenes render with
+``mi.render`` in the default mode, from ``mi.load_dict`` or from XML files read by
+``mi.load_file``. The forms: coefficient matrices in every basis (reciprocal or not,
+isotropic or not), the fitted families "lambert+ggx", "lambert+beckmann", "lafortune",
+"dsbrdf", "rr8807", "factored", "tucker" and "tabulated" (every family), the models
+``Lambert``, ``Minnaert``, ``Phong``, ``BlinnPhong``, ``OrenNayar`` (qualitative) and
+``CookTorrance`` (separable Smith G) of :mod:`project.models`, MERL tables, and hybrids of
+these; the samplers below. Values agree with the numpy evaluation to float32 rounding. The
+arrays the forms read are made once, at load time; nothing in the traced path touches numpy
+or the host.
+
+The numpy evaluation remains for everything else (RGL and other measured data read by
+:mod:`project.measured`, other models of :mod:`project.models`, any object with ``eval``) and
+in the scalar variants: called once per call of ``eval``, ``pdf``, ``eval_pdf`` or
+``sample``, one wavefront of directions in the JIT variants (converted with ``numpy`` once
+and the result wrapped back), one sample in the scalar variants. Such an instance cannot be
+traced: in the JIT variants render with :func:`render` (or inside :func:`evaluated`), which
+switches Dr.Jit to evaluated loops and calls; while it is alive every scene needs that,
+since Dr.Jit traces every live BSDF of a symbolic call. The attribute ``traced`` of a plugin
+object says which path it takes (set it to False to force the numpy path, e.g. as a
+reference). Only the numpy path counts clamped values in ``stats``;
+:func:`negative_fraction` measures them for any form.
 
 Importance sampling
 -------------------
@@ -51,7 +71,10 @@ cosine alone; the one whose weights vary least on a fixed pilot set wins. Mitsub
 chi-square test
 (``mitsuba.chi2``) checks that sampling and density agree
 (``tests/compress/test_mitsuba.py``); ``tests/benchmarks/bench_mitsuba.py`` compares the
-variance against pure cosine sampling and against Mitsuba's ``measured`` plugin.
+variance against pure cosine sampling and against Mitsuba's ``measured`` plugin, and with
+``--render`` the render time and per-sample costs against ``measured``. Each sampler is
+chosen and built with numpy at load time; its Dr.Jit twin draws the same distribution and
+reports the same density.
 """
 
 from __future__ import annotations

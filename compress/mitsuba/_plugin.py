@@ -15,6 +15,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ._sampling import LobeSampler, MixtureSampler, TableSampler, sampler_for
+from ._traced import traced_eval
+from ._traced_sampling import traced_sampler
 
 __all__ = ["INCIDENT", "PLUGIN", "ClampStats", "bsdf", "evaluated", "register", "render",
            "negative_fraction", "representation", "set_default_variant"]
@@ -167,8 +169,9 @@ def bsdf(rep: Any, *, incident: str = "light") -> Any:
 def evaluated() -> Iterator[None]:
     """Run Dr.Jit loops and calls in evaluated (wavefront) mode inside the block.
 
-    The plugin evaluates numpy code on concrete arrays; Mitsuba's JIT variants trace loops
-    and virtual calls symbolically by default, where no array holds values yet. In evaluated
+    Needed only by representations without a Dr.Jit form (``traced`` False), whose numpy
+    code needs concrete arrays; Mitsuba's JIT variants trace loops and virtual calls
+    symbolically by default, where no array holds values yet. In evaluated
     mode every iteration of the path tracer's loop is a wavefront of concrete arrays, and the
     plugin is called once per wavefront (Dr.Jit's ``JitFlag.SymbolicLoops`` and
     ``JitFlag.SymbolicCalls`` off). A no-op in scalar variants.
@@ -182,6 +185,9 @@ def evaluated() -> Iterator[None]:
 
 def render(scene: Any, *, spp: int | None = None, seed: int = 0) -> Any:
     """``mitsuba.render`` in evaluated mode (see :func:`evaluated`); returns the image tensor.
+
+    Kept for representations without a Dr.Jit form and for compatibility: traced ones
+    render with ``mi.render`` in Mitsuba's default mode (the same image, the same code).
 
     Parameters
     ----------
@@ -244,10 +250,12 @@ def _make_class() -> type:
         return mi.Vector3f(np.ascontiguousarray(x.T, dtype=np.float32))
 
     class ScatmodesBSDF(mi.BSDF):
-        """Mitsuba BSDF evaluating a scatmodes representation with numpy, once per wavefront.
+        """Mitsuba BSDF of a scatmodes representation: its Dr.Jit form, else numpy.
 
         Plugin parameters: ``filename`` (a file written by ``compress.save``) and
-        ``incident`` ("light" or "camera").
+        ``incident`` ("light" or "camera"). ``traced`` is True when eval, pdf and sample
+        are Dr.Jit code that Mitsuba traces (JIT variants, forms of
+        :func:`compress.mitsuba._traced.traced_eval`); otherwise numpy runs once per call.
         """
 
         def __init__(self, props: Any) -> None:
@@ -271,18 +279,65 @@ def _make_class() -> type:
             self.rep = rep
             self.incident = incident
             self.stats = ClampStats()
-            self.sampler: LobeSampler | TableSampler | MixtureSampler = sampler_for(
-                rep, incident=incident)
+            # the Dr.Jit form (JIT variants): None where a form has none (numpy path)
+            self._f = None if scalar else traced_eval(rep)
+            self.sampler = sampler_for(rep, incident=incident)
             self.m_components = [flags]
             self.m_flags = flags
+
+        @property
+        def sampler(self) -> LobeSampler | TableSampler | MixtureSampler:
+            """The importance sampler (numpy; its Dr.Jit twin is made when it is set)."""
+            return self._sampler
+
+        @sampler.setter
+        def sampler(self, value: LobeSampler | TableSampler | MixtureSampler) -> None:
+            self._sampler = value
+            self._s = traced_sampler(value) if self._f is not None else None
+            #: True when eval, pdf and sample are Dr.Jit code that Mitsuba traces
+            self.traced = self._s is not None
+
+        # -- the Dr.Jit core (traced) ------------------------------------------------------
+        def _spectrum_jit(self, vals: list, cos_o: Any, ok: Any) -> Any:
+            """Channel values f -> max(f, 0) cos, as mi.Spectrum; 0 where not ``ok``."""
+            vals = [dr.select(ok, dr.maximum(v, 0.0) * cos_o, 0.0) for v in vals]
+            if mono:
+                y = vals[0] if len(vals) == 1 else (
+                    float(_LUMINANCE[0]) * vals[0] + float(_LUMINANCE[1]) * vals[1]
+                    + float(_LUMINANCE[2]) * vals[2])
+                return mi.Color1f(y)
+            if len(vals) == 1:
+                return mi.Color3f(vals[0], vals[0], vals[0])
+            return mi.Color3f(*vals)
+
+        def _eval_jit(self, ctx: Any, wi: Any, wo: Any, ok: Any) -> Any:
+            """Return f cos(theta of Mitsuba's wo) as mi.Spectrum (0 off ``ok``)."""
+            importance = ctx.mode == mi.TransportMode.Importance
+            to_light_is_wo = (self.incident == "light") != bool(importance)
+            light, view = (wo, wi) if to_light_is_wo else (wi, wo)
+            return self._spectrum_jit(self._f(light, view), wo.z, ok)
+
+        def _inputs_jit(self, si: Any, wo: Any, active: Any) -> tuple[Any, Any, Any]:
+            """Return unit directions and the mask of pairs above the horizon.
+
+            Pairs off the mask (below the horizon, zero or NaN vectors: a failed sample's
+            w_o is the zero vector) are replaced by the normal, so that no table index is
+            formed from a NaN (a gather does not check its index).
+            """
+            wi, wo = dr.normalize(si.wi), dr.normalize(wo)
+            ok = active & (wi.z > 0.0) & (wo.z > 0.0)
+            z = mi.Vector3f(0.0, 0.0, 1.0)
+            return dr.select(ok, wi, z), dr.select(ok, wo, z), ok
 
         # -- the numpy core -------------------------------------------------------------
         def _check(self) -> None:
             if not scalar and dr.flag(dr.JitFlag.SymbolicScope):
                 raise RuntimeError(
-                    "the scatmodes BSDF evaluates numpy code and cannot be traced "
-                    "symbolically: render with compress.mitsuba.render(scene) or inside "
-                    "compress.mitsuba.evaluated()")
+                    f"the scatmodes BSDF of {type(self.rep).__name__} has no Dr.Jit form "
+                    f"and evaluates numpy code, which cannot be traced symbolically: "
+                    f"render with compress.mitsuba.render(scene) or inside "
+                    f"compress.mitsuba.evaluated() (while this instance is alive, every "
+                    f"scene needs that)")
 
         def _values(self, ctx: Any, wi: NDArray, wo: NDArray, ok: NDArray) -> NDArray:
             """Return f cos(theta of Mitsuba's wo) as (n, 3) RGB, 0 where not ``ok``."""
@@ -316,6 +371,11 @@ def _make_class() -> type:
         # -- the mitsuba.BSDF interface -------------------------------------------------
         def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
             """f(w_light, w_camera) cos(theta_o): Mitsuba's cosine-weighted BSDF."""
+            if self.traced:
+                wi, wo, ok = self._inputs_jit(si, wo, active)
+                if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                    ok = mi.Bool(False)
+                return self._eval_jit(ctx, wi, wo, ok)
             self._check()
             wi_, wo_, ok = self._inputs(si, wo, active)
             ok &= bool(ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0))
@@ -323,6 +383,9 @@ def _make_class() -> type:
 
         def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> Any:
             """Density of :meth:`sample`, per steradian."""
+            if self.traced:
+                wi, wo, ok = self._inputs_jit(si, wo, active)
+                return dr.select(ok, self._s.pdf(wi, wo), 0.0)
             self._check()
             wi_, wo_, ok = self._inputs(si, wo, active)
             p = np.where(ok, self.sampler.pdf(_unit(wi_), _unit(wo_)), 0.0)
@@ -330,6 +393,12 @@ def _make_class() -> type:
 
         def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True) -> tuple[Any, Any]:
             """(:meth:`eval`, :meth:`pdf`) in one call."""
+            if self.traced:
+                wi, wo, ok = self._inputs_jit(si, wo, active)
+                p = dr.select(ok, self._s.pdf(wi, wo), 0.0)
+                if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                    ok = mi.Bool(False)
+                return self._eval_jit(ctx, wi, wo, ok), p
             self._check()
             wi_, wo_, ok = self._inputs(si, wo, active)
             p = np.where(ok, self.sampler.pdf(_unit(wi_), _unit(wo_)), 0.0)
@@ -339,6 +408,8 @@ def _make_class() -> type:
         def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any,
                    active: Any = True) -> tuple[Any, Any]:
             """Draw wo from the mixture; the weight is eval / pdf (0 for failed samples)."""
+            if self.traced:
+                return self._sample_jit(ctx, si, sample1, sample2, active)
             self._check()
             n = 1 if scalar else max(dr.width(si.wi), dr.width(sample1), dr.width(sample2),
                                      dr.width(active))
@@ -358,6 +429,25 @@ def _make_class() -> type:
             bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
             bs.sampled_component = mi.UInt32(0)
             return bs, spectrum(weight)
+
+        def _sample_jit(self, ctx: Any, si: Any, sample1: Any, sample2: Any,
+                        active: Any) -> tuple[Any, Any]:
+            wi = dr.normalize(si.wi)
+            up = active & (wi.z > 0.0)
+            wi = dr.select(up, wi, mi.Vector3f(0.0, 0.0, 1.0))
+            wo, p = self._s.sample(wi, sample1, sample2)
+            ok = up & (p > 0.0)
+            if not ctx.is_enabled(mi.BSDFFlags.GlossyReflection, 0):
+                ok = mi.Bool(False)
+            # failed samples (w_o = 0) are evaluated at the normal, then masked
+            value = self._eval_jit(ctx, wi, dr.select(ok, wo, mi.Vector3f(0.0, 0.0, 1.0)), ok)
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = wo
+            bs.pdf = dr.select(ok, p, 0.0)
+            bs.eta = 1.0
+            bs.sampled_type = mi.UInt32(+mi.BSDFFlags.GlossyReflection)
+            bs.sampled_component = mi.UInt32(0)
+            return bs, value * dr.select(ok, dr.rcp(dr.select(ok, p, 1.0)), 0.0)
 
         def traverse(self, callback: Any) -> None:
             """No differentiable parameters: the representation is fixed numpy data."""

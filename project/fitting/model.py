@@ -438,10 +438,10 @@ def fit_model(brdf: object, family: str, *, metric: str = "l2", **options) -> Fi
         Any object with ``eval(wi, wo)`` returning finite values >= 0 (an analytic model,
         :func:`project.measured.read_merl`, a coefficient matrix...). Delta terms are not
         fitted (warned).
-    family : {"lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807",
-              "tabulated"}
-        See each family's module (listed in :mod:`project.fitting`) for its parameters
-        and bounds.
+    family : str
+        One of ``"lambert+ggx"``, ``"lambert+beckmann"``, ``"lafortune"``, ``"factored"``,
+        ``"dsbrdf"``, ``"rr8807"``, ``"tabulated"``, ``"tucker"``. See each family's module
+        (listed in :mod:`project.fitting`) for its parameters and bounds.
     metric : {"l2", "log"}
         What the fit minimises: the relative l2 error of q = f cos theta_i cos theta_o, or
         the RMS of log(1 + f cos theta_i) (module notes).

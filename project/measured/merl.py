@@ -256,6 +256,17 @@ class MERLBRDF(BRDF):
         return self._table.view()  # a view of a read-only array cannot be made writeable
 
     @property
+    def lookup_table(self) -> NDArray[np.float64]:
+        """(90, 90, 180, 3) read-only table that ``eval`` interpolates: invalid cells filled.
+
+        Each invalid cell holds the value of the nearest valid cell of its channel; for other
+        evaluators of the same lookup (e.g. a renderer's kernels).
+        """
+        view = self._lut.view()
+        view.flags.writeable = False
+        return view
+
+    @property
     def valid(self) -> NDArray[np.bool_]:
         """(3, 90, 90, 180) read-only mask, False at invalid cells."""
         return self._valid.view()

@@ -21,6 +21,9 @@ from basis.jit import (
     lane_unit,
 )
 
+#: Row stride of the transposed tiles in the tests: rows longer than a tile, offset 3.
+_STRIDE = LANES + 3
+
 
 @numba.njit(cache=False)
 def _run(out, x, p1, p2, cc, ss, seed, c1, s1, sn, tile, src, dirs, unit):
@@ -28,7 +31,7 @@ def _run(out, x, p1, p2, cc, ss, seed, c1, s1, sn, tile, src, dirs, unit):
     lane_scaled(out, LANES, 1.5, x, 0, p1, LANES)
     lane_mul(out, 2 * LANES, x, 0, p1, LANES)
     lane_rotate(cc, ss, seed, LANES, c1, s1, 0.75, sn)
-    lane_transpose(tile, 3, 11, src, LANES)
+    lane_transpose(tile, 3, _STRIDE, src, LANES)
     return lane_unit(dirs, 1, unit[0], unit[1], unit[2], unit[3], 1e-3)
 
 
@@ -38,11 +41,11 @@ def test_lane_operations_give_the_scalar_bits(rng):
     x, p1, p2 = rng.random(LANES), rng.random(2 * LANES), rng.random(LANES)
     cc, ss, seed = rng.random(2 * LANES), rng.random(2 * LANES), rng.random(2 * LANES)
     c1, sn = rng.random(LANES), rng.random(LANES)
-    src = rng.random(10 * LANES)
+    src = rng.random((LANES + 2) * LANES)
     dirs = rng.normal(size=(2 + LANES, 3))
     dirs[3] = [0.0, 0.0, 1.0]  # the pole: azimuth (1, 0)
     dirs[4] = [1e-9, 0.0, 1.0]  # 0 < sin(theta) < 1e-3: flagged
-    out, tile, unit = np.zeros(3 * LANES), np.zeros((8, 11)), np.zeros((4, LANES))
+    out, tile, unit = np.zeros(3 * LANES), np.zeros((LANES, _STRIDE)), np.zeros((4, LANES))
     cc0, ss0, seed0 = cc.copy(), ss.copy(), seed.copy()
     flagged = _run(out, x, p1, p2, cc, ss, seed, c1, c1[::-1].copy(), sn, tile, src, dirs, unit)
     s1 = c1[::-1]
@@ -55,7 +58,7 @@ def test_lane_operations_give_the_scalar_bits(rng):
     flat = tile.reshape(-1)
     for r in range(LANES):
         for j in range(LANES):
-            assert flat[3 + 11 * j + r] == src[LANES + LANES * r + j]
+            assert flat[3 + _STRIDE * j + r] == src[LANES + LANES * r + j]
     d = dirs[1:1 + LANES]
     r = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
     xx, yy, zz = d[:, 0] / r, d[:, 1] / r, d[:, 2] / r
@@ -78,7 +81,7 @@ def _run_more(out, x, p1, p2, ang, c1, s1, tile, ix, iy, f, dirs, disk):
     lane_muladd(out, 3 * LANES, x, 0, p1, LANES, p2, 0, p1, 0, -1.0)
     lane_copy(out, 4 * LANES, p2, 0)
     lane_turn(ang, 2 * LANES, 0, 3 * LANES, LANES, c1, s1)
-    lane_tile(tile, 3, 11, p1, ix, ang, iy, f, 1)
+    lane_tile(tile, 3, _STRIDE, p1, ix, ang, iy, f, 1)
     lane_disk(dirs, 1, disk[0], disk[1], disk[2], disk[3])
 
 
@@ -93,7 +96,7 @@ def test_more_lane_operations_give_the_scalar_bits(rng):
     dirs[1] = [0.0, 0.0, 1.0]  # the pole: azimuth (1, 0), rho = 0
     dirs[2] = [0.3, -0.4, -0.7]  # z <= -1/2: rho^2 = 1 - z
     dirs[3] *= 1 + 1e-7  # not quite unit: renormalised
-    out, tile, disk = np.zeros(5 * LANES), np.zeros((8, 11)), np.zeros((4, LANES))
+    out, tile, disk = np.zeros(5 * LANES), np.zeros((LANES, _STRIDE)), np.zeros((4, LANES))
     ang0 = ang.copy()
     _run_more(out, x, p1, p2, ang, c1, s1, tile, ix, iy, f, dirs, disk)
     q = p1[LANES:]
@@ -110,7 +113,7 @@ def test_more_lane_operations_give_the_scalar_bits(rng):
         k = 1 + r
         v = (f[k] * p1[ix[k]:ix[k] + LANES]) * ang[iy[k]:iy[k] + LANES]
         for j in range(LANES):
-            assert flat[3 + 11 * j + r] == v[j]
+            assert flat[3 + _STRIDE * j + r] == v[j]
     d = dirs[1:1 + LANES]
     r = np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
     xx, yy, zz = d[:, 0] / r, d[:, 1] / r, d[:, 2] / r
@@ -196,3 +199,69 @@ def test_run_parallel_nested_call_runs_inline_and_errors_propagate():
     if numba.config.NUMBA_NUM_THREADS >= 2:
         with pytest.raises(ValueError, match="pool thread"):
             run_parallel(bad, 100)
+
+
+# -- what LLVM emits for a wide-vector CPU ------------------------------------------------------
+# Compiled (never run) in a child process whose numba targets the named CPU; prints the count
+# of packed-double instructions on zmm and on ymm registers for a kernel of lane operations
+# and for a loop kernel marked with wide_loops.
+_CROSS = r"""
+import re
+import numba
+from basis.jit import lane_recur, lane_transpose, wide_loops
+
+@numba.njit(cache=False)
+def lanes(dst, x, p1, p2, tile):
+    for i in range(0, x.size, 8):
+        lane_recur(dst, i, x, i, p1, i, p2, i, 1.5, 0.25)
+    lane_transpose(tile, 0, 8, dst, 0)
+
+@numba.njit(cache=False)
+def loops(m, a, s):
+    wide_loops()
+    for j in range(m.shape[0]):
+        for k in range(m.shape[1]):
+            m[j, k] = m[j, k] + a[j] * s[k]
+
+f1, f2 = numba.float64[::1], numba.float64[:, ::1]
+for k, sig in ((lanes, (f1, f1, f1, f1, f1)), (loops, (f2, f1, f1))):
+    k.compile(sig)
+    asm = k.inspect_asm(sig)
+    print(*(len(re.findall(r"\tv\w+pd\t[^\n]*%" + r, asm)) for r in ("zmm", "ymm")))
+"""
+
+
+def _cross_compile(cpu: str, tmp_path) -> list[tuple[int, int]]:
+    import os
+    import platform
+    import subprocess
+    import sys
+
+    import pytest
+
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        pytest.skip("numba compiles for the host's architecture: x86-64 needs an x86-64 host")
+    env = dict(os.environ, NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES="",
+               NUMBA_CACHE_DIR=str(tmp_path))
+    r = subprocess.run([sys.executable, "-c", _CROSS], env=env, capture_output=True,
+                       text=True, timeout=300)
+    if r.returncode and "No available targets" in r.stderr:
+        pytest.skip("this LLVM build has no x86 target")
+    assert r.returncode == 0, r.stderr[-2000:]
+    return [tuple(int(v) for v in line.split()) for line in r.stdout.split("\n") if line]
+
+
+def test_lane_operations_use_zmm_registers_on_avx512(tmp_path):
+    # Skylake-SP: LLVM's tuning prefers 256-bit vectors there, yet explicit <8 x double>
+    # stays whole (numba marks no "min-legal-vector-width"; split, it would be ymm pairs and
+    # no zmm), and wide_loops lifts the loop vectoriser to 512 bits. Without it that loop
+    # ran on ymm registers only (0 zmm, 15 ymm with LLVM 22).
+    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm) = _cross_compile("skylake-avx512", tmp_path)
+    assert lane_zmm > 0 and lane_ymm < lane_zmm, (lane_zmm, lane_ymm)
+    assert loop_zmm > 0, (loop_zmm, loop_ymm)
+
+
+def test_lane_operations_use_ymm_pairs_on_avx2(tmp_path):
+    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm) = _cross_compile("haswell", tmp_path)
+    assert lane_zmm == 0 and lane_ymm > 0, (lane_zmm, lane_ymm)
+    assert loop_zmm == 0 and loop_ymm > 0, (loop_zmm, loop_ymm)

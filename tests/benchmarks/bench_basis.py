@@ -56,6 +56,7 @@ import time
 from functools import partial
 
 import numpy as np
+from _machine import header, tag  # the machine: CPU model, features, vector width
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -158,6 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     dirs = directions(args.points, args.seed)
     n = dirs.shape[0]
     busy = busy_cores()
+    print(header())
     print(f"# bench_basis: {n} points, best of {args.repeats}, {platform.machine()} "
           f"({os.cpu_count()} cores), numpy {np.__version__}, numba {numba.__version__}, "
           f"sphericart {version('sphericart')}")
@@ -212,7 +214,7 @@ def main(argv: list[str] | None = None) -> int:
         if warm:
             del buf_sc, buf_sh
 
-    print()
+    print(f"\nOn {tag()}:")
     print("| basis | L | functions | ms per call | ns per (point x function) "
           "| ratio to sphericart | throughput vs sphericart |")
     print("| --- | ---: | ---: | ---: | ---: | ---: | ---: |")

@@ -33,6 +33,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _machine import header, tag  # the machine: CPU model, features, vector width
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -78,12 +80,14 @@ def main() -> None:
     ap.add_argument("--skip-demo", action="store_true", help="time the start-up only")
     args = ap.parse_args()
     py = sys.executable
+    print(header())
     print(f"# scatmodes start-up and demo; {os.cpu_count()} cores, load {load()}")
 
     base = best([py, "-c", "pass"], args.repeats)
     heavy = best([py, "-c", "import numba, scipy.stats, h5py, matplotlib.figure"], args.repeats)
     version = best([py, "-m", "compress.cli", "--version"], args.repeats)
-    print(f"\n| start-up (best of {args.repeats}) | seconds | vs bare interpreter |")
+    print(f"\nOn {tag()}:")
+    print(f"| start-up (best of {args.repeats}) | seconds | vs bare interpreter |")
     print("|---|---|---|")
     print(f"| python -c pass | {base:.3f} | 1.0 |")
     print(f"| import numba, scipy.stats, h5py, matplotlib | {heavy:.3f} | {heavy / base:.1f} |")
@@ -108,7 +112,8 @@ def main() -> None:
                          demo(tmp / "cache2", tmp / "out", "--no-compile-ahead")))
             rows.append(("demo warm, --no-compile-ahead",
                          demo(tmp / "cache2", tmp / "out", "--no-compile-ahead")))
-        print("\n| scatmodes demo (one run each) | wall s | vs warm | CPU s (all processes) |")
+        print(f"\nOn {tag()}:")
+        print("| scatmodes demo (one run each) | wall s | vs warm | CPU s (all processes) |")
         print("|---|---|---|---|")
         for label, (t, c) in rows:
             print(f"| {label} | {t:.1f} | {t / warm[0]:.2f} | {c:.1f} |")

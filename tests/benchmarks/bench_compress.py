@@ -47,6 +47,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from _machine import header, tag  # noqa: E402 - the machine: CPU, features, vector width
+
 import basis  # noqa: E402
 import compress  # noqa: E402
 import project  # noqa: E402
@@ -88,6 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory() as tmp:
         brdf = _table(a.material, tmp)
     wi, wo = pairs(a.pairs, 7)
+    print(header())
     print(f"bench_compress: {a.pairs} pairs, numba threads {numba.get_num_threads()}, "
           f"load average {os.getloadavg()[0]:.2f}, table {brdf.name}")
     runs: dict[str, tuple] = {}
@@ -125,7 +128,8 @@ def main(argv: list[str] | None = None) -> int:
             fn()
             best[k] = min(best[k], time.perf_counter() - t0)
     ref = runs["MERL lookup (trilinear)"][1] / best["MERL lookup (trilinear)"]
-    print("\n| evaluator | ms per 1M pairs | M samples/s | ratio to MERL lookup | l2 error |")
+    print(f"\nOn {tag()}:")
+    print("| evaluator | ms per 1M pairs | M samples/s | ratio to MERL lookup | l2 error |")
     print("|---|---|---|---|---|")
     for k, (_, n, l2) in runs.items():
         rate = n / best[k]

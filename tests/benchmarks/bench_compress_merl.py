@@ -32,6 +32,8 @@ import sys
 import time
 from pathlib import Path
 
+from _machine import header, tag  # the machine: CPU model, features, vector width
+
 from compress.benchmark import benchmark_merl
 
 HERE = Path(__file__).resolve()
@@ -48,6 +50,7 @@ def main() -> int:
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--materials", default=None, help="comma-separated names (default all)")
     args = p.parse_args()
+    print(header())
     if not TOOL.is_file():
         print(f"skipped: {TOOL} not found (the MERL surrogates need ../shared)")
         return 0
@@ -68,7 +71,8 @@ def main() -> int:
     print(json.dumps(summary, indent=2))
     s5, s10 = summary["0.05"], summary["0.1"]
     within = sum(1 for r in rows if r["meets_0.1"] and r["bytes_0.1"] <= 4096)
-    print(f"\nmaterials: {len(rows)}; wall time {wall / 60:.1f} min with {args.workers} "
+    print(f"\nOn {tag()}:")
+    print(f"materials: {len(rows)}; wall time {wall / 60:.1f} min with {args.workers} "
           "workers")
     print(f"within 10 % at <= 4 kB: {within} / {len(rows)} (target: all); largest "
           f"{s10['max_bytes']} B")

@@ -39,6 +39,7 @@ import sys
 import time
 
 import numpy as np
+from _machine import header, tag  # the machine: CPU model, features, vector width
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -94,6 +95,7 @@ def main(argv: list[str] | None = None) -> int:
     surface = GaussianSurface(1.0, 6.5, resolution=args.size, seed=1)
     basis = HemiZernike(args.order)
     run = {"rays": args.rays, "seed": 7, "chunk": args.chunk}
+    print(header())
     print(f"{platform.node()}: {os.cpu_count()} cores; {surface!r}; {basis!r} "
           f"({basis.size} functions); {args.rays} rays")
     simulate(surface, basis, rays=1000, seed=1)  # JIT compile or cache load
@@ -117,6 +119,7 @@ def main(argv: list[str] | None = None) -> int:
                            estimate._TASK_RAYS // per_task))
         return -(-chunks // group)
 
+    print(f"On {tag()}:")
     print(f"{chunks} chunks of {ref.meta['chunk']} directions x {ref.meta['targets']} rays")
     print(f"{'run':>15} {'wall s':>8} {'/local':>7} {'/1 thread':>9} {'efficiency':>10} "
           f"{'tasks':>6} {'overhead':>9}")

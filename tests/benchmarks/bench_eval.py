@@ -52,6 +52,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from _machine import header, tag  # noqa: E402 - the machine: CPU, features, vector width
+
 import basis  # noqa: E402
 import project  # noqa: E402
 from basis.jit import run_parallel  # noqa: E402
@@ -128,7 +130,7 @@ def evaluation(args: argparse.Namespace) -> None:
         fns[f"{m!r}"[:90]] = lambda m=m: m.eval(wi, wo)
     best = best_times(fns, args.repeats)
     ref = best["MERLBRDF.eval (peer)"]
-    print(f"\n{args.pairs} pairs, RGB, table {brdf.name}")
+    print(f"\n{args.pairs} pairs, RGB, table {brdf.name}, on {tag()}:")
     print("| evaluator | ms per call | M pairs/s | throughput ratio to MERLBRDF.eval |")
     print("| --- | ---: | ---: | ---: |")
     for k, t in best.items():
@@ -150,6 +152,7 @@ def cold_start(args: argparse.Namespace) -> None:
                 print(f"cold start: {' '.join(cmd)} failed:\n{r.stderr[-2000:]}")
                 return
     print(f"\n`{' '.join(cmd)}` with an empty numba cache, then again")
+    print(f"On {tag()}:")
     print("| run | wall s |")
     print("| --- | ---: |")
     print(f"| first (compiles, writes the cache) | {times[0]:.1f} |")
@@ -166,6 +169,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-cold-start", dest="cold", action="store_false")
     ap.add_argument("--demo-args", default="", help="extra options of scatmodes demo")
     args = ap.parse_args(argv)
+    print(header())
     print(f"# bench_eval: numba threads {numba.get_num_threads()}, "
           f"load average {os.getloadavg()[0]:.2f}")
     evaluation(args)

@@ -53,6 +53,7 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+from _machine import header, tag  # the machine: CPU model, features, vector width
 
 from basis import HemiZernike, hemisphere_rule
 from project import models, project
@@ -179,7 +180,8 @@ def sharp_row(path: Path, args: argparse.Namespace, reps: int) -> None:
             t0 = time.perf_counter()
             out[name] = fn()
             best[name] = min(best[name], time.perf_counter() - t0)
-    print(f"\nSharp measured material: blue-acrylic to {zb!r}, tol 1e-4; reference "
+    print(f"\nOn {tag()}:")
+    print(f"Sharp measured material: blue-acrylic to {zb!r}, tol 1e-4; reference "
           f"{args.ref_nodes} x {args.ref_fine} Gauss x {args.ref_azimuths} azimuths "
           f"({t_ref:.0f} s)")
     print("| method | s | nodes (z, phi) | z rule (s x d nodes) | rel. error est. | "
@@ -211,6 +213,7 @@ def merl_file(folder: str, name: str = "gold-metallic-paint") -> Path | None:
 
 def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
+    print(header())
     reps = 1 if args.quick else args.repeats
     o_iso, o_aniso, o_merl = (8, 6, 8) if args.quick else (16, 12, 16)
     with tempfile.TemporaryDirectory() as tmp:
@@ -225,9 +228,10 @@ def main(argv: list[str] | None = None) -> int:
             cases.append(("MERL gold-metallic-paint", read_merl(merl), o_merl, 1e-4, 5.0))
         else:
             print(f"(MERL case skipped: {SHARED} not found)")
-        header = ("| case | basis | ours s | target s | nodes (z, phi) | rel. error est. | "
+        columns = ("| case | basis | ours s | target s | nodes (z, phi) | rel. error est. | "
                   "evaluations | dense s (scaled) | dense / ours |")
-        print(header)
+        print(f"On {tag()}:")
+        print(columns)
         print("|---" * 9 + "|")
         for label, brdf, order, tol, target in cases:
             zb = HemiZernike(order)

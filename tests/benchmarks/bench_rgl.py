@@ -41,6 +41,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from _machine import header, tag  # noqa: E402 - the machine: CPU, features, vector width
+
 from project.measured import read_rgl  # noqa: E402
 
 
@@ -75,10 +77,11 @@ def main() -> int:
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--llvm", action="store_true", help="also time llvm_ad_rgb (see above)")
     args = p.parse_args()
+    print(header())
     wi, wo = pairs(args.pairs, args.seed)
     brdf = read_rgl(args.file)
     brdf.eval(wi[:10], wo[:10])  # compile or load the cached kernel
-    print(f"{brdf!r}; {args.pairs} pairs; load average "
+    print(f"On {tag()}: {brdf!r}; {args.pairs} pairs; load average "
           f"{', '.join(f'{x:.2f}' for x in os.getloadavg())}; {os.cpu_count()} cpus")
     t_ours, ours = best(lambda: brdf.eval(wi, wo), args.repeats)
     ours_cos = ours * wo[:, 2:3]

@@ -62,6 +62,7 @@ import sys
 import time
 
 import numpy as np
+from _machine import header, tag  # the machine: CPU model, features, vector width
 
 
 def parse_args(argv: list[str] | None) -> argparse.Namespace:
@@ -347,6 +348,7 @@ def scene_rows(args: argparse.Namespace) -> None:
     ndirs = -(-args.rays // args.targets)
     rays = ndirs * args.targets
     dirs = incident_directions(ndirs, np.uint64(1), 0, True)
+    print(f"# on {tag()}")
     print(f"# scenes: {rays} incident rays, {args.targets} per direction; casts = first-hit "
           "queries; ratio = casts/s / Mitsuba's casts/s on batches >= 2^16 rays")
     print(f"{'scene':<14} {'row':<20} {'seconds':>9} {'rays/s':>11} {'casts/ray':>9} "
@@ -393,6 +395,7 @@ def main(argv: list[str] | None = None) -> int:
     import numba
 
     numba.set_num_threads(min(args.threads, numba.config.NUMBA_NUM_THREADS))
+    print(header())
     print(f"# {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
           f"threads {args.threads}, python {sys.version.split()[0]}, numba {numba.__version__}")
     if args.heightfield:
@@ -411,6 +414,7 @@ def runs_table(runs: int, repeats: int, ours, casts_ours: int, mitsuba, rays: in
     between the two halves decide the ratio (measured: Mitsuba's batch 0.41 s in one run,
     1.0 s in the others of the same invocation). The spread of the ratio over the runs
     shows what one run can give on a shared machine."""
+    print(f"# on {tag()}")
     print(f"# {runs} runs, each: ours simulate and mitsuba 1 batch alternated, best of "
           f"{repeats} each")
     print(f"{'run':>4} {'ours s':>8} {'ours casts/s':>13} {'mitsuba s':>10} "
@@ -489,6 +493,7 @@ def heightfield_rows(args: argparse.Namespace) -> None:
     # the reference: Mitsuba's casts/s on one batch of all incident rays (the issue's row);
     # our casts count every first-hit query of a path, including the final miss
     ref = casts["mitsuba 1 batch"] / res["mitsuba 1 batch"] if run is not None else None
+    print(f"# on {tag()}")
     print(f"{'row':<20} {'seconds':>9} {'rays/s':>12} {'casts/s':>12} {'ratio':>7}")
     for label, t in res.items():
         cps = casts[label] / t

@@ -12,17 +12,11 @@ holds the numbers recorded in the file, the screenshot is not blank).
 from __future__ import annotations
 
 import base64
-import fcntl
 import io
 import json
-import os
 import re
-import select as select_fd
-import shutil
 import subprocess
 import sys
-import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -37,7 +31,6 @@ from project.measured import write_measurements, write_merl
 from project.models import CookTorrance, Lambert
 
 PAPER = Path(__file__).parents[1] / "data" / "paper_white_rgb.bsdf"
-BROWSER = Path("/usr/bin/chromium-headless-shell")
 SURROGATE_TOOL = Path(__file__).parents[3] / "shared" / "tools" / "merl_surrogate.py"
 SURROGATE_ZIP = Path(__file__).parents[3] / "shared" / "data" / "merl_nbrdf.zip"
 CT = CookTorrance([0.3, 0.2, 0.1], 0.3, "ggx", ior=1.5)
@@ -247,110 +240,7 @@ def test_merl_table_report(merl_file, tmp_path):
     assert len(images(page)) == 4  # lobes (2), spheres, chart: no reference, no expansion
 
 
-# -- in a real browser ------------------------------------------------------------------------
-class Chromium:
-    """Headless Chromium driven over the DevTools protocol on a pipe (no extra package).
-
-    ``--remote-debugging-pipe``: the browser reads JSON messages, each ended by a NUL byte,
-    from file descriptor 3 and writes its answers and events to descriptor 4.
-    """
-
-    def __init__(self, profile: Path) -> None:
-        a, self._write = os.pipe()
-        self._read, b = os.pipe()
-        # copies at descriptors >= 10 (close-on-exec), so that the dup2 onto 3 and 4 in the
-        # child cannot overwrite one of them before it is copied
-        to_browser = fcntl.fcntl(a, fcntl.F_DUPFD_CLOEXEC, 10)
-        from_browser = fcntl.fcntl(b, fcntl.F_DUPFD_CLOEXEC, 10)
-        os.close(a)
-        os.close(b)
-
-        def fds() -> None:  # in the child: the pipes at the descriptors the protocol uses
-            os.dup2(to_browser, 3)  # dup2 clears close-on-exec: 3 and 4 reach the browser
-            os.dup2(from_browser, 4)
-
-        self.proc = subprocess.Popen(
-            [str(BROWSER), "--no-sandbox", "--disable-gpu", "--disable-background-networking",
-             "--disable-component-update", "--disable-sync", "--no-first-run",
-             f"--user-data-dir={profile}", "--remote-debugging-pipe", "about:blank"],
-            close_fds=False, preexec_fn=fds,  # every other descriptor is close-on-exec
-            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        os.close(to_browser)
-        os.close(from_browser)
-        self._buf = b""
-        self._id = 0
-        self.events: list[dict] = []
-        try:
-            target = self.send("Target.createTarget", url="about:blank")["targetId"]
-            self.session = self.send("Target.attachToTarget", targetId=target,
-                                     flatten=True)["sessionId"]
-        except BaseException:
-            self.close()
-            raise
-
-    def _next(self, deadline: float) -> dict:
-        while b"\0" not in self._buf:
-            ready, _, _ = select_fd.select([self._read], [], [], max(0.0, deadline - time.time()))
-            if not ready:
-                raise TimeoutError("no answer from the browser within 60 s")
-            chunk = os.read(self._read, 1 << 20)
-            if not chunk:
-                raise EOFError("the browser closed its pipe")
-            self._buf += chunk
-        raw, self._buf = self._buf.split(b"\0", 1)
-        return json.loads(raw)
-
-    def wait(self, method: str) -> dict:
-        deadline = time.time() + 60
-        while True:
-            m = self._next(deadline)
-            if m.get("method") == method:
-                return m
-            self.events.append(m)
-
-    def send(self, method: str, *, session: str | None = None, **params) -> dict:
-        self._id += 1
-        msg = {"id": self._id, "method": method, "params": params}
-        if session:
-            msg["sessionId"] = session
-        os.write(self._write, json.dumps(msg).encode() + b"\0")
-        deadline = time.time() + 60
-        while True:
-            m = self._next(deadline)
-            if m.get("id") == self._id:
-                if "error" in m:
-                    raise RuntimeError(f"{method}: {m['error']}")
-                return m["result"]
-            self.events.append(m)
-
-    def page(self, method: str, **params) -> dict:
-        return self.send(method, session=self.session, **params)
-
-    def close(self) -> None:
-        try:
-            self.send("Browser.close")
-        except (OSError, EOFError, TimeoutError):
-            self.proc.kill()  # our own child, by its handle
-        finally:
-            os.close(self._write)
-            os.close(self._read)
-            self.proc.wait(30)
-
-
-@pytest.fixture
-def browser(tmp_path):
-    if not BROWSER.is_file():
-        pytest.skip(f"no headless browser at {BROWSER} (Debian package "
-                    "chromium-headless-shell)")
-    profile = Path(tempfile.mkdtemp(dir=tmp_path))
-    b = Chromium(profile)
-    try:
-        yield b
-    finally:
-        b.close()
-        shutil.rmtree(profile, ignore_errors=True)
-
-
+# -- in a real browser (the fixture `browser` of tests/conftest.py) ---------------------------
 def test_report_in_a_real_browser(browser, selected, tmp_path):
     out = report(selected, CT, tmp_path / "ct.html")
     for domain in ("Page", "Runtime", "Log"):
@@ -380,13 +270,7 @@ def test_report_in_a_real_browser(browser, selected, tmp_path):
     assert pixels.shape == (768, 1366) and pixels.var() > 100.0
     pdf = base64.b64decode(browser.page("Page.printToPDF")["data"])  # the print style
     assert pdf.startswith(b"%PDF") and len(pdf) > 10_000
-    bad = [e for e in browser.events
-           if e.get("method") == "Runtime.exceptionThrown"
-           or (e.get("method") == "Runtime.consoleAPICalled"
-               and e["params"]["type"] in ("error", "assert"))
-           or (e.get("method") == "Log.entryAdded"
-               and e["params"]["entry"]["level"] == "error")]
-    assert bad == []
+    assert browser.errors() == []
 
 
 def test_tucker_file_report(tmp_path):

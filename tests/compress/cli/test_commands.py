@@ -746,7 +746,7 @@ def test_fit_model_recovers_lambert_ggx(tmp_path, capsys, ggx_samples):
                            "--model", "lambert+ggx", "--restarts", "1", "--folds", "3", "-o",
                            str(out_h5))
     assert status == 0 and err == "", err
-    assert "FittedModel('lambert+ggx'" in out and "8 parameters (64 bytes)" in out
+    assert "FittedModel('lambert+ggx'" in out and "8 parameters (64 bytes stored as float64)" in out
     got = re.search(r"cross-validated l2 error ([0-9.e+-]+) \+- ([0-9.e+-]+) \(3-fold CV", out)
     assert got, out
     model = load(out_h5)

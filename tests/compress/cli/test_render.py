@@ -123,6 +123,23 @@ def test_bad_inputs(ggx, tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []  # nothing written on errors
 
 
+def test_variant_without_gpu(ggx, tmp_path, capsys):
+    """--variant cuda_ad_rgb where Mitsuba finds no CUDA device: a one-line error."""
+    import drjit as dr
+    import mitsuba as mi
+    try:
+        mi.set_variant("cuda_ad_rgb")
+        dr.eval(mi.Float(1.0) + 1.0)
+        pytest.skip("a CUDA device is present: nothing to refuse")
+    except Exception:  # noqa: BLE001 - the case under test
+        pass
+    finally:
+        mi.set_variant("scalar_rgb")
+    assert "--variant cuda_ad_rgb needs an NVIDIA GPU" in one_line_error(
+        capsys, "render", ggx, "-o", tmp_path / "x.png", "--variant", "cuda_ad_rgb")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_without_mitsuba(tmp_path):
     code = ("import sys; sys.modules['mitsuba'] = None\n"
             "from compress.cli import main\n"
