@@ -7,13 +7,13 @@
   :class:`project.factored.FactoredLobe`; it is read back as a :class:`project.FittedModel`);
 - a :class:`compress.Hybrid` whose lobe is such a model.
 
-Schema version 5
+Schema version 6
 ----------------
 Root attributes of every file:
 
 ==================  =========================================================================
 ``format``          the string ``"scatmodes.coefficients"`` (foreign files lack it)
-``schema_version``  integer, 5
+``schema_version``  integer, 6
 ``library``         ``"scatmodes <version>"`` that wrote the file (information only)
 ``content``         ``"coefficients"``, ``"model"`` or ``"hybrid"``
 ``dtype``           ``"float64"``, ``"float32"`` or ``"float16"``: precision of the stored
@@ -119,7 +119,9 @@ parameter ranges, matching channels of a hybrid's parts).
 
 Older versions
 --------------
-Each version has its own reader in ``_READERS``. Schema version 4 is version 5 without the
+Each version has its own reader in ``_READERS``. Schema version 5 is version 6 without the
+model family ``"grid"`` (:mod:`project.fitting.grid`), for the same reason as 4 and 5.
+Schema version 4 is version 5 without the
 model family ``"tucker"`` (:mod:`project.tucker`; a library that reads version 4 only
 refuses version 5 files rather than meeting a family it does not know). Schema version 3
 is version 4 without the
@@ -162,7 +164,7 @@ __all__ = ["CONTENTS", "FILE_KINDS", "FORMAT", "READABLE_VERSIONS", "SCHEMA_VERS
 #: Value of the ``format`` attribute that marks a scatmodes file.
 FORMAT = "scatmodes.coefficients"
 #: Schema written by :func:`save`.
-SCHEMA_VERSION = 5
+SCHEMA_VERSION = 6
 #: Values of the ``content`` attribute: what a file holds.
 CONTENTS = ("coefficients", "model", "hybrid")
 #: Storage precisions accepted by :func:`save`.
@@ -184,7 +186,7 @@ _LOW_LEVEL = (OSError, RuntimeError, KeyError, TypeError, IndexError, AttributeE
 
 
 def save(obj: Any, path: str | os.PathLike, *, dtype: str = "float64") -> Path:
-    """Write a coefficient matrix, a fitted model or a hybrid to an HDF5 file (schema 5).
+    """Write a coefficient matrix, a fitted model or a hybrid to an HDF5 file (schema 6).
 
     Parameters
     ----------
@@ -922,7 +924,7 @@ def _read_v4(r: _Reader) -> Any:
     return _read_v3(r, general=True)
 
 
-_READERS = {1: _read_v1, 2: _read_v2, 3: _read_v3, 4: _read_v4, 5: _read_v4}
+_READERS = {1: _read_v1, 2: _read_v2, 3: _read_v3, 4: _read_v4, 5: _read_v4, 6: _read_v4}
 #: Schema versions :func:`load` understands.
 READABLE_VERSIONS = tuple(sorted(_READERS))
 

@@ -73,7 +73,7 @@ def test_schema_layout(tmp_path, rng):
     with h5py.File(tmp_path / "s.h5", "r") as f:
         # text attributes are fixed-length UTF-8 (h5py reads them as bytes)
         assert f.attrs["format"] == FORMAT.encode()
-        assert f.attrs["schema_version"] == SCHEMA_VERSION == 5
+        assert f.attrs["schema_version"] == SCHEMA_VERSION == 6
         assert f.attrs["reciprocal"]
         assert f.attrs["content"] == b"coefficients" and f.attrs["dtype"] == b"float64"
         assert f.attrs["basis_kind"] == b"zernike" and f.attrs["basis_order"] == 4
@@ -139,13 +139,13 @@ def test_foreign_hdf5(tmp_path):
         load(p)
 
 
-@pytest.mark.parametrize("version", [6, 0])
+@pytest.mark.parametrize("version", [7, 0])
 def test_unknown_version(tmp_path, rng, version):
     p = save(_iso(basis.HemiZernike(2), rng, 1), tmp_path / "v.h5")
     with h5py.File(p, "r+") as f:
         f.attrs["schema_version"] = version
     with pytest.raises(ValueError, match=rf"schema version {version}; .* reads schema "
-                                         r"versions 1, 2, 3, 4, 5: upgrade scatmodes"):
+                                         r"versions 1, 2, 3, 4, 5, 6: upgrade scatmodes"):
         load(p)
 
 
@@ -242,7 +242,7 @@ def test_schema_1_and_2_files_still_load(tmp_path, rng, version, b, channels):
             f.attrs["basis_kind"] = "hemi_sh"
     with pytest.raises(ValueError, match="sideways"):
         load(tmp_path / "old.h5")
-    assert READABLE_VERSIONS == (1, 2, 3, 4, 5)
+    assert READABLE_VERSIONS == (1, 2, 3, 4, 5, 6)
 
 
 @pytest.mark.parametrize("kind", basis.KINDS)
@@ -895,10 +895,12 @@ def test_schema_4_needs_the_reciprocal_flag(tmp_path, rng):
         load(p)
 
 
-def test_schema_4_files_still_load(tmp_path, rng):
-    """Schema 5 only adds the "tucker" family: a file that says 4 reads as before."""
+@pytest.mark.parametrize("version", [4, 5])
+def test_schema_4_and_5_files_still_load(tmp_path, rng, version):
+    """Schemas 5 and 6 only add the "tucker" and "grid" families: a file that says 4 or 5
+    reads as before."""
     cm = _iso(basis.HemiZernike(3), rng, 3)
-    p = save(cm, tmp_path / "v4.h5")
+    p = save(cm, tmp_path / "v.h5")
     with h5py.File(p, "r+") as f:
-        f.attrs["schema_version"] = 4
+        f.attrs["schema_version"] = version
     assert np.array_equal(load(p).matrix, cm.matrix)

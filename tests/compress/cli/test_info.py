@@ -80,7 +80,7 @@ def test_matrix_text_and_json(tmp_path, rng, capsys):
     assert status == 0, err
     with h5py.File(path, "r") as f:
         library = f.attrs["library"].decode()
-    assert out.splitlines()[0] == (f"{path}: scatmodes coefficients (schema 5, written by "
+    assert out.splitlines()[0] == (f"{path}: scatmodes coefficients (schema 6, written by "
                                    f"{library}), {os.path.getsize(path):,} bytes on disk, "
                                    "192 bytes of float64 numbers")
     r = rows(out)
@@ -134,7 +134,7 @@ def test_hybrid(tmp_path, rng, capsys):
     assert d["nbytes"] == h.nbytes
     _, out, _ = run(capsys, "info", str(tmp_path / "h.h5"))
     lines = out.splitlines()
-    assert "scatmodes hybrid (schema 5" in lines[0]
+    assert "scatmodes hybrid (schema 6" in lines[0]
     assert lines.index("lobe:") < lines.index("residual:")
     r = rows(out)
     assert r["family"] == "lambert+ggx" and r["basis"].startswith("HemiZernike(2)")
