@@ -151,18 +151,29 @@ def _merl(rep: Any) -> Traced:
         i0, j0 = mi.UInt32(i0f), mi.UInt32(j0f)
         k0 = mi.UInt32(k0f) % npd
         k1 = dr.select(k0 + 1 >= npd, 0, k0 + 1)
-        base = (i0 * nd + j0) * (npd * nch)
-        out = []
-        for c in range(nch):
-            def at(di: int, dj: int, k: Any, c: int = c) -> Any:
-                return _gather(data, base + ((di * nd + dj) * npd * nch + c) + k * nch)
-            lo = dr.lerp(dr.lerp(at(0, 0, k0), at(0, 0, k1), tw),
-                         dr.lerp(at(0, 1, k0), at(0, 1, k1), tw), tv)
-            hi = dr.lerp(dr.lerp(at(1, 0, k0), at(1, 0, k1), tw),
-                         dr.lerp(at(1, 1, k0), at(1, 1, k1), tw), tv)
-            out.append(dr.lerp(lo, hi, tu))
-        return out
+        return _trilinear(data, (i0 * nd + j0) * (npd * nch), nd, npd, nch, k0, k1,
+                          (tu, tv, tw))
     return f
+
+
+def _trilinear(data: Any, base: Any, nd: int, m: int, nch: int, k0: Any, k1: Any,
+               t: tuple[Any, Any, Any]) -> list:
+    """Interpolate a (n, nd, m, nch) device table in its cell at ``base`` (row i0, j0).
+
+    ``k0``, ``k1`` are the two columns of the last axis (periodic neighbours), ``t`` the
+    fractions along the three axes; returns one value per channel.
+    """
+    tu, tv, tw = t
+    out = []
+    for c in range(nch):
+        def at(di: int, dj: int, k: Any, c: int = c) -> Any:
+            return _gather(data, base + ((di * nd + dj) * m * nch + c) + k * nch)
+        lo = dr.lerp(dr.lerp(at(0, 0, k0), at(0, 0, k1), tw),
+                     dr.lerp(at(0, 1, k0), at(0, 1, k1), tw), tv)
+        hi = dr.lerp(dr.lerp(at(1, 0, k0), at(1, 0, k1), tw),
+                     dr.lerp(at(1, 1, k0), at(1, 1, k1), tw), tv)
+        out.append(dr.lerp(lo, hi, tu))
+    return out
 
 
 # -- NVIDIA MDL measured BSDF grids ---------------------------------------------------------
@@ -755,21 +766,13 @@ def _tabulated(params: dict) -> Traced:
         tw = w - k0f
         k0 = mi.UInt32(k0f) % m
         k1 = dr.select(k0 + 1 >= m, 0, k0 + 1)
-        base = (i0 * nd + j0) * (m * nch)
-        scale = 1.0
-        if divide:
-            cc = dr.maximum(wi.z, 0.0) * dr.maximum(wo.z, 0.0)
-            scale = dr.select(cc > 0.0, dr.rcp(dr.select(cc > 0.0, cc, 1.0)), 0.0)
-        out = []
-        for c in range(nch):
-            def at(di: int, dj: int, k: Any, c: int = c) -> Any:
-                return _gather(data, base + ((di * nd + dj) * m * nch + c) + k * nch)
-            lo = dr.lerp(dr.lerp(at(0, 0, k0), at(0, 0, k1), tw),
-                         dr.lerp(at(0, 1, k0), at(0, 1, k1), tw), tv)
-            hi = dr.lerp(dr.lerp(at(1, 0, k0), at(1, 0, k1), tw),
-                         dr.lerp(at(1, 1, k0), at(1, 1, k1), tw), tv)
-            out.append(dr.lerp(lo, hi, tu) * scale)
-        return out
+        values = _trilinear(data, (i0 * nd + j0) * (m * nch), nd, m, nch, k0, k1,
+                            (tu, tv, tw))
+        if not divide:
+            return values
+        cc = dr.maximum(wi.z, 0.0) * dr.maximum(wo.z, 0.0)
+        scale = dr.select(cc > 0.0, dr.rcp(dr.select(cc > 0.0, cc, 1.0)), 0.0)
+        return [v * scale for v in values]
     return f
 
 
