@@ -54,7 +54,10 @@ A *model group* (the root for ``content = "model"``, the group ``lobe`` of a hyb
 one parametric model: attributes ``family`` (a family of :func:`project.fit_model`),
 ``dtype`` and ``info`` (JSON text), and a group ``params`` with one dataset per parameter,
 named after it, holding its values flattened (C order) in one dimension; the dataset's
-attribute ``shape`` (integer array, empty for a scalar) gives the parameter's shape.
+attribute ``shape`` (integer array, empty for a scalar) gives the parameter's shape. A model
+may store a packed form of its parameters (``stored_params``) that ``project.FittedModel``
+accepts back: a symmetric ``"grid"`` table is stored as its (n (n + 1) / 2, m, C) upper
+triangle.
 
 A hybrid (``content = "hybrid"``) has the root attribute ``info`` (``Hybrid.info``), the
 model group ``lobe`` and the matrix group ``residual``.
@@ -459,7 +462,8 @@ def _matrix_part(cm: CoefficientMatrix, dtype: str, what: str) -> _Part:
 def _model_part(model: Any, dtype: str, what: str) -> _Part:
     from project.fitting import FittedModel
 
-    family, params = model.family, model.params
+    # a model may store a packed form of its params (a symmetric grid: its upper triangle)
+    family, params = model.family, getattr(model, "stored_params", model.params)
     if not isinstance(family, str):
         raise TypeError(f"{what}'s family must be a string, got {type(family).__name__}")
     if not isinstance(params, Mapping):

@@ -23,6 +23,8 @@ a quarter of the file (559 kB for a (45, 90) RGB file of 2.2 MB); writing it wit
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -80,7 +82,38 @@ def sample_grid(brdf: object, resolution: tuple[int, int], symmetric: bool) -> N
 
 
 def grid_model(table: object) -> tuple[MBSDFBRDF, bool]:
-    """Return the lookup of a grid's table and whether the table is symmetric (reciprocal)."""
-    brdf = MBSDFBRDF(table)  # checks the shape (n, n, m, 1 or 3) and finiteness
+    """Return the lookup of a grid's table and whether the table is symmetric (reciprocal).
+
+    ``table`` is the whole (n, n, m, C) table, or the packed (n (n + 1) / 2, m, C) upper
+    triangle of a symmetric one (:func:`pack_symmetric`, the form a file stores).
+    """
+    t = np.asarray(table, dtype=np.float64)
+    if t.ndim == 3:
+        t = unpack_symmetric(t)
+    brdf = MBSDFBRDF(t)  # checks the shape (n, n, m, 1 or 3) and finiteness
     t = brdf.table
     return brdf, bool(np.array_equal(t, t.transpose(1, 0, 2, 3)))
+
+
+def pack_symmetric(table: NDArray) -> NDArray:
+    """Return the (n (n + 1) / 2, m, C) entries theta_in <= theta_out of a symmetric table.
+
+    These are the reals a symmetric grid stores (:func:`grid_reals`); the transpose
+    holds the rest.
+    """
+    i, j = np.triu_indices(table.shape[0])
+    return table[i, j]
+
+
+def unpack_symmetric(packed: NDArray) -> NDArray:
+    """Return the symmetric (n, n, m, C) table of its packed upper triangle."""
+    k = packed.shape[0]
+    n = int(round((math.sqrt(8 * k + 1) - 1) / 2))
+    if k == 0 or n * (n + 1) // 2 != k:
+        raise ValueError(f"a packed grid table must have n (n + 1) / 2 rows (a triangular "
+                         f"number), got shape {packed.shape}")
+    i, j = np.triu_indices(n)
+    table = np.empty((n, n, *packed.shape[1:]))
+    table[i, j] = packed
+    table[j, i] = packed
+    return table

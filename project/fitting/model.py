@@ -58,36 +58,38 @@ They are minimised by ``scipy.optimize.least_squares`` (trust-region reflective,
 analytic Jacobians (for "lambert+ggx" and "lambert+beckmann" in closed form, computed with
 the residuals in one pass over the pairs; for "rr8807" the derivative of Lambda in p comes
 from the derivative of its quadrature, splined alike), roughness and exponents in log
-scale) from ``restarts`` starting points:
-"lambert+ggx" and "lambert+beckmann" in the l2 metric are solved by variable projection
-(Golub & Pereyra 1973): kd and ks enter linearly, so for given (alpha, F0) their best
-values within their bounds follow per channel in closed form, and the search runs over
-(log alpha, F0) alone, starting from a grid over alpha's whole range [5e-4, 1.5] (49 values
-on a log scale) and seven F0: restart 0 from the grid's best point, restart k from the
-k-th best local minimum of the grid's profile over alpha (another basin: a clear coat and
-a flake lobe), else a random point. This is a global search in alpha at the cost of a few
-hundred passes over the pairs (a 1,439-sample, 31-wavelength goniometer table: 1-2 s a
-fit instead of 19-36 s). From 8 channels on, the other fits take LSMR steps on a sparse
-Jacobian. Otherwise
-restart 0 picks the nonlinear parameters (roughness, or lobe direction and exponent) on a
-small grid, the others draw them at random from ``SeedSequence([seed, restart])``; for each
-start the parameters that enter linearly (kd, ks, rho) are solved by non-negative least
-squares. For "rr8807" the nonlinear start is (F0, sigma, p, a) with one F0 for all channels. For
-"dsbrdf", whose channels are fitted one at a time, restart 0 is the paper's initialisation
-(the best single lobe, constant in theta_d, on a grid of (kappa, gamma), then kappa and
-gamma halved for each further lobe) and the others draw constant curves at random; its
-least squares stop when a step lowers the cost by less than 1e-6 relative (``ftol``,
-instead of scipy's 1e-8), because the cost is flat along lobes that fade out over part of
-theta_d: on a glossy Cook-Torrance the final costs then lie within 3e-4 of the 1e-7 ones
-with 3 to 10 times fewer evaluations. The best restart is kept; if it stopped on
-``max_nfev`` instead of a tolerance, a
-RuntimeWarning reports the best error reached. ``info`` reports the errors on
-``peak_resolving_pairs(error_n, seed=error_seed)``, a second, independent set (default
-``error_seed = seed + 1``: another scrambling), so they are not biased by the fit. Both sets
-use the lobe ``widths`` option; the default (0.02, 0.08, 0.3) resolves lobes down to alpha
-~0.02 well and sharper ones without bias but with more variance: on the blue-acrylic
-surrogate (alpha = 0.008) the standard error of the lambert+ggx l2 error is 0.0035 with the
-default and 0.0007 with ``widths=(0.005, 0.02, 0.08, 0.3)`` (65536 pairs, both l2 = 0.600).
+scale) from ``restarts`` starting points.
+
+"lambert+ggx", "lambert+beckmann" and one-lobe "lafortune" in the l2 metric are solved by
+variable projection (Golub & Pereyra 1973): their linear parameters (kd and ks, or kd and
+rho) follow per channel in closed form within their bounds for given nonlinear ones, and
+the search runs over the nonlinear parameters alone ((log alpha, F0) for the microfacet
+lobes), starting from a grid over their whole range (alpha in [5e-4, 1.5], 49 values on a
+log scale, and seven F0): restart 0 from the grid's best point, restart k from the k-th
+best local minimum of the grid's profile (another basin: a clear coat and a flake lobe),
+else a random point. This is a global search at the cost of a few hundred passes over the
+pairs (a 1,439-sample, 31-wavelength goniometer table: 1-2 s a fit instead of 19-36 s).
+From 8 channels on, the other fits take LSMR steps on a sparse Jacobian.
+
+For the other fits, restart 0 picks the nonlinear parameters (roughness, or lobe direction
+and exponent) on a small grid, the others draw them at random from ``SeedSequence([seed,
+restart])``; for each start the parameters that enter linearly (kd, ks, rho) are solved by
+non-negative least squares. For "rr8807" the nonlinear start is (F0, sigma, p, a) with one
+F0 for all channels. For "dsbrdf", whose channels are fitted one at a time, restart 0 is the
+paper's initialisation (the best single lobe, constant in theta_d, on a grid of (kappa,
+gamma), then kappa and gamma halved for each further lobe) and the others draw constant
+curves at random; its least squares stop when a step lowers the cost by less than 1e-6
+relative (``ftol``, instead of scipy's 1e-8), because the cost is flat along lobes that fade
+out over part of theta_d: on a glossy Cook-Torrance the final costs then lie within 3e-4 of
+the 1e-7 ones with 3 to 10 times fewer evaluations. The best restart is kept; if it stopped
+on ``max_nfev`` instead of a tolerance, a RuntimeWarning reports the best error reached.
+``info`` reports the errors on ``peak_resolving_pairs(error_n, seed=error_seed)``, a second,
+independent set (default ``error_seed = seed + 1``: another scrambling), so they are not
+biased by the fit. Both sets use the lobe ``widths`` option; the default (0.02, 0.08, 0.3)
+resolves lobes down to alpha ~0.02 well and sharper ones without bias but with more
+variance: on the blue-acrylic surrogate (alpha = 0.008) the standard error of the
+lambert+ggx l2 error is 0.0035 with the default and 0.0007 with ``widths=(0.005, 0.02, 0.08,
+0.3)`` (65536 pairs, both l2 = 0.600).
 
 ``info["param_stderr"]`` is the usual linearised standard error
 sqrt(diag((J^T J)^-1) s^2), s^2 = sum r^2 / (m - p), at the optimum (in the natural units of
@@ -132,13 +134,13 @@ from ._geometry import _Geometry
 from ._solver import _covariance, _solve
 from .dsbrdf import _DSBRDF, DS_COEFFS
 from .grid import GRID_OPTIONS as _GRID_OPTIONS
-from .grid import grid_model, grid_reals, grid_resolution, sample_grid
+from .grid import grid_model, grid_reals, grid_resolution, pack_symmetric, sample_grid
 from .lafortune import _Lafortune
 from .microfacet import _Microfacet
 from .rr8807 import _P, _RR8807, _wavelengths
 
-__all__ = ["DEFAULTS", "FACTORED_OPTIONS", "FAMILIES", "GRID_OPTIONS", "METRICS", "SAMPLE_DEFAULTS",
-           "TABULATED_OPTIONS", "TUCKER_OPTIONS", "FittedModel", "fit_model"]
+__all__ = ["DEFAULTS", "FACTORED_OPTIONS", "FAMILIES", "GRID_OPTIONS", "METRICS",
+           "SAMPLE_DEFAULTS", "TABULATED_OPTIONS", "TUCKER_OPTIONS", "FittedModel", "fit_model"]
 
 #: The parametric families :func:`fit_model` knows.
 FAMILIES = ("lambert+ggx", "lambert+beckmann", "lafortune", "factored", "dsbrdf", "rr8807",
@@ -356,6 +358,10 @@ class FittedModel(BRDF):
         self.family = "grid"
         self.reciprocal = symmetric
         self.params = {"table": self._model.table}
+        # what compress.save writes: a symmetric table as its upper triangle, the reals
+        # nparams counts (FittedModel("grid", ...) accepts either form)
+        self.stored_params = {"table": pack_symmetric(self._model.table)} if symmetric \
+            else self.params
         self.channels = self._model.channels
         self._scalar = self.channels == 1
         self.nparams = grid_reals((n, m), self.channels, symmetric)

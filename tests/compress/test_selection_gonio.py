@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 
+import h5py
 import numpy as np
 import pytest
 
@@ -68,6 +69,10 @@ def test_grid_family_reproduces_an_mbsdf_file(tmp_path):
     compress.save(half, tmp_path / "half.h5")
     back = compress.load(tmp_path / "half.h5")
     assert back.family == "grid" and back.nparams == half.nparams
+    # the file holds the reals nparams counts: a symmetric table as its upper triangle
+    with h5py.File(tmp_path / "half.h5", "r") as f:
+        assert f["params/table"].size == half.nparams
+    np.testing.assert_array_equal(back.params["table"], t)
 
 
 @pytest.mark.parametrize("params, error, match", [
