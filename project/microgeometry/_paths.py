@@ -143,11 +143,14 @@ def _cosine_sample(nx, ny, nz, u1, u2):
 # -- traversal --------------------------------------------------------------------------------
 
 @njit(inline="always")
-def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
+def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy, isx, isy, du, dv, igd):
     # First crossing of the ray from above the two triangles of cell (cx, cy) (unwrapped
     # position ix, iy) on [t0, t1]. The surface along the segment is piecewise linear with
     # one kink where it crosses the diagonal u = v, so the signed height f = z_ray - z_surf
-    # is exact at the piece ends and linear in between.
+    # is exact at the piece ends and linear in between. isx, isy = 1 / sx, 1 / sy and the
+    # ray's du, dv = dx / sx, dy / sy and igd = 1 / (du - dv) are the caller's (_cast_setup):
+    # the packet walk of _packets.py computes these lines for several rays at once, where a
+    # division costs several times a product, and gives the same bits.
     # Inlined into the walk: as a call it spilled and reloaded some twenty registers.
     ny, nx = h.shape
     i1 = cx + 1 if cx + 1 < nx else 0
@@ -156,15 +159,13 @@ def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
     h10 = h[cy, i1]
     h01 = h[j1, cx]
     h11 = h[j1, i1]
-    du = dx / sx
-    dv = dy / sy
-    ua = (ox + t0 * dx - ix * sx) / sx
-    va = (oy + t0 * dy - iy * sy) / sy
+    ua = (ox + t0 * dx - ix * sx) * isx
+    va = (oy + t0 * dy - iy * sy) * isy
     g0 = ua - va
     gd = du - dv
     ts = t1
     if gd != 0.0:
-        tc = t0 - g0 / gd
+        tc = t0 - g0 * igd
         if t0 < tc < t1:
             ts = tc
     ta = t0
@@ -182,13 +183,47 @@ def _cell(ix, iy, cx, cy, t0, t1, ox, oy, oz, dx, dy, dz, h, sx, sy):
         fa = oz + ta * dz - (h00 + a1 * (ua + (ta - t0) * du) + a2 * (va + (ta - t0) * dv))
         fb = oz + tb * dz - (h00 + a1 * (ua + (tb - t0) * du) + a2 * (va + (tb - t0) * dv))
         if fa > 0.0 and fb <= 0.0:
-            th = ta + (tb - ta) * fa / (fa - fb)
-            gx = -a1 / sx
-            gy = -a2 / sy
-            inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
-            return True, th, gx * inv, gy * inv, inv
+            th, gx, gy, gz = _facet_hit(ta, tb, fa, fb, a1, a2, sx, sy)
+            return True, th, gx, gy, gz
         ta = tb
     return False, 0.0, 0.0, 0.0, 1.0
+
+
+@njit(inline="always")
+def _facet_hit(ta, tb, fa, fb, a1, a2, sx, sy):
+    """Return the crossing t and the unit facet normal of a piece where f changes sign.
+
+    f = z_ray - z_surf is linear on [ta, tb] from fa > 0 to fb <= 0; the facet's heights
+    rise by a1 per cell along x and a2 along y.
+    """
+    th = ta + (tb - ta) * fa / (fa - fb)
+    gx = -a1 / sx
+    gy = -a2 / sy
+    inv = 1.0 / np.sqrt(gx * gx + gy * gy + 1.0)
+    return th, gx * inv, gy * inv, inv
+
+
+@njit(inline="always")
+def _cast_setup(dx, dy, dz, oz, sx, sy, hmin, hmax, tol):
+    """Return the per-cast constants of the walk.
+
+    They are 1 / dx, 1 / dy (0 for 0), the distance t_slab at which the ray leaves the slab
+    [hmin, hmax], and du, dv, 1 / (du - dv) of the cell test: the same bits in _intersect
+    and in the packet walk of _packets.py.
+    """
+    inv_dx = 1.0 / dx if dx != 0.0 else 0.0
+    inv_dy = 1.0 / dy if dy != 0.0 else 0.0
+    # never step past the slab [hmin, hmax] (vertical rays have tx = ty = inf)
+    if dz < 0.0:
+        t_slab = (hmin - 2.0 * tol - oz) / dz
+    elif dz > 0.0:
+        t_slab = (hmax + tol - oz) / dz
+    else:
+        t_slab = np.inf
+    du = dx / sx
+    dv = dy / sy
+    igd = 1.0 / (du - dv) if du != dv else 0.0  # used only when du != dv
+    return inv_dx, inv_dy, t_slab, du, dv, igd
 
 
 @njit(inline="always")
@@ -238,18 +273,12 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
     # 15.4, and 6 instead of 15 for a ray leaving a facet.
     ny, nx = h.shape
     tol = 1e-9 * (hmax - hmin + sx + sy)
-    inv_dx = 1.0 / dx if dx != 0.0 else 0.0
-    inv_dy = 1.0 / dy if dy != 0.0 else 0.0
+    inv_dx, inv_dy, t_slab, du, dv, igd = _cast_setup(dx, dy, dz, oz, sx, sy, hmin, hmax, tol)
+    isx = 1.0 / sx
+    isy = 1.0 / sy
     # node widths are powers of two times the top level's: a mask replaces the modulo (an
     # integer division) when the grid is a power of two, the usual case
     pow2 = (nx & (nx - 1)) == 0 and (ny & (ny - 1)) == 0
-    # never step past the slab [hmin, hmax] (vertical rays have tx = ty = inf)
-    if dz < 0.0:
-        t_slab = (hmin - 2.0 * tol - oz) / dz
-    elif dz > 0.0:
-        t_slab = (hmax + tol - oz) / dz
-    else:
-        t_slab = np.inf
     # the level's node size, its inverse, node counts and offset, kept up to date as the
     # level changes (doubling and halving are exact)
     lev = 0
@@ -298,7 +327,7 @@ def _intersect(ox, oy, oz, dx, dy, dz, h, pyr, offs, top, sx, sy, hmin, hmax, ma
             continue
         else:
             hit, th, gx, gy, gz = _cell(ix, iy, cx, cy, t, t1, ox, oy, oz, dx, dy, dz, h, sx,
-                                        sy)
+                                        sy, isx, isy, du, dv, igd)
             if hit:
                 return _HIT, th, gx, gy, gz
             up = True  # a cell the ray crossed without a hit
