@@ -62,7 +62,7 @@ class Lanes:
         return Vec(self, ir.Constant(self.vty, [float(x)] * self.w))
 
     def splat(self, x: ir.Value) -> Vec:
-        """The scalar double ``x`` (an IR value) in every lane."""
+        """Return the scalar double ``x`` (an IR value) in every lane."""
         b = self.b
         v = b.insert_element(ir.Constant(self.vty, ir.Undefined), x, ir.Constant(_I32, 0))
         return Vec(self, b.shuffle_vector(v, ir.Constant(self.vty, ir.Undefined),
@@ -78,8 +78,11 @@ class Lanes:
         self.b.store(v.v, self.b.bitcast(ptr, self.vty.as_pointer()), align=8)
 
     def gather(self, data: ir.Value, index: Vec) -> Vec:
-        """``data[index]`` lane by lane: ``data`` a float or double pointer, ``index`` whole
-        numbers below 2^31 (converted to int32), float values widened to double (exact)."""
+        """Load ``data[index]`` lane by lane.
+
+        ``data`` is a float or double pointer, ``index`` holds whole numbers below 2^31
+        (converted to int32); float values are widened to double (exact).
+        """
         b = self.b
         ii = b.fptosi(index.v, ir.VectorType(_I32, self.w))
         out = ir.Constant(self.vty, ir.Undefined)
@@ -92,7 +95,7 @@ class Lanes:
         return Vec(self, out)
 
     def call(self, name: str, *vals: Vec) -> Vec:
-        """An LLVM vector intrinsic such as ``llvm.floor`` on doubles."""
+        """Call an LLVM vector intrinsic such as ``llvm.floor`` on doubles."""
         fnty = ir.FunctionType(self.vty, [self.vty] * len(vals))
         fn = cgutils.get_or_insert_function(self.b.module, fnty, f"{name}.v{self.w}f64")
         return Vec(self, self.b.call(fn, [v.v for v in vals]))
@@ -101,20 +104,20 @@ class Lanes:
         return self.call("llvm.floor", x)
 
     def where(self, m: Mask, a, b) -> Vec:
-        """``a`` in the lanes where ``m`` holds, else ``b``."""
+        """Return ``a`` in the lanes where ``m`` holds, else ``b``."""
         return Vec(self, self.b.select(m.m, self.const(a).v, self.const(b).v))
 
     def min(self, a: Vec, b: Vec) -> Vec:
-        """numba's ``min(a, b)`` of floats: ``b if b < a else a``."""
+        """Return numba's ``min(a, b)`` of floats lane-wise: ``b if b < a else a``."""
         return self.where(b < a, b, a)
 
     def any(self, m: Mask) -> ir.Value:
-        """An i1 that holds when ``m`` holds in some lane."""
+        """Return an i1 that holds when ``m`` holds in some lane."""
         bits = self.b.bitcast(m.m, ir.IntType(self.w))
         return self.b.icmp_unsigned("!=", bits, ir.Constant(ir.IntType(self.w), 0))
 
     def bits(self, m: Mask) -> ir.Value:
-        """The lanes of ``m`` as the low bits of an int64 (lane j: bit j)."""
+        """Return the lanes of ``m`` as the low bits of an int64 (lane j: bit j)."""
         return self.b.zext(self.b.bitcast(m.m, ir.IntType(self.w)), _I64)
 
 

@@ -157,9 +157,9 @@ def _walk_codegen():
                     hit, kept = cross, found
                 else:
                     cross = cross & (tb > ta) & ~hit
-                    kept = tuple(v.where(cross, a, b) for a, b in zip(found, kept))
+                    kept = tuple(v.where(cross, a, b) for a, b in zip(found, kept, strict=True))
                     hit = hit | cross
-            for r, x in zip((TA, TB, FA, FB, A1, A2), kept):
+            for r, x in zip((TA, TB, FA, FB, A1, A2), kept, strict=True):
                 v.store(at(r), x)
             builder.store((leaf & hit).m, hit_slot)
         hit = Mask(v, builder.load(hit_slot))

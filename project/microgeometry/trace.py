@@ -15,9 +15,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numpy.typing import ArrayLike, NDArray
-
 from numba.cpython.unsafe.numbers import trailing_zeros
+from numpy.typing import ArrayLike, NDArray
 
 from basis.jit import loopjit, njit, run_parallel
 from basis.validation import as_directions

@@ -10,7 +10,10 @@ directions, ``--targets`` rays per direction at uniform points of the period). R
 - ``ours simulate``: :func:`project.microgeometry.simulate` at ``HemiZernike(--order)``: the
   tracer (all bounces, on ``--threads`` numba threads) plus the coefficient accumulation
   (basis evaluation at every exit ray, the outer products, batch statistics).
-- ``ours trace``: the same rays through the tracer alone (no accumulation).
+- ``ours trace``: the same rays through the tracer alone (no accumulation): the packet walk,
+  as many rays per step as the CPU's vector registers hold doubles.
+- ``ours trace, 1 ray``: the same through the ray-by-ray walk (the same bits): what the
+  packets gain on this CPU.
 - ``mitsuba intersect``: Mitsuba 3 (variant ``llvm_ad_rgb``, float32, its own BVH) with the
   same surface built in Python as one mesh of 2 n^2 triangles (the periodic tile plus its
   closing row and column, 513 x 513 vertices), ``Scene.ray_intersect`` called on the same
@@ -464,6 +467,8 @@ def heightfield_rows(args: argparse.Namespace) -> None:
     out = _alloc(rays)
     res["ours trace"] = best(lambda: _run(surface, dirs, args.targets, np.uint64(1), 0, out),
                              args.repeats + 2)
+    res["ours trace, 1 ray"] = best(lambda: _run(surface, dirs, args.targets, np.uint64(1), 0,
+                                                 out, packets=False), args.repeats + 2)
     bounces_ours = float(np.mean(out[2]))
     try:
         run = mitsuba_runner(surface, dirs, args.targets, 1, args.threads)
@@ -483,7 +488,8 @@ def heightfield_rows(args: argparse.Namespace) -> None:
         print(f"# facet hits per incident ray: ours {bounces_ours:.4f}, mitsuba "
               f"{hits[False] / rays:.4f} (mitsuba's tile is not periodic)")
     casts_ours = _casts(out)
-    casts = {"ours simulate": casts_ours, "ours trace": casts_ours}
+    casts = {"ours simulate": casts_ours, "ours trace": casts_ours,
+             "ours trace, 1 ray": casts_ours}
     if run is not None:
         for label in ("mitsuba intersect", "mitsuba + bounce"):
             casts[label] = hits[False] + rays  # every query of the mirror loop
