@@ -28,7 +28,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from basis._vector import Lanes, Mask, host_lanes
+from basis._vector import Lanes, Mask, Vec, host_lanes
 
 #: rays per packet: the doubles in one vector register of the CPU
 LANES = host_lanes()
@@ -36,8 +36,8 @@ LANES = host_lanes()
 # rows of the state array: the ray (origin, direction), its per-cast constants (_cast_setup),
 # the walk (t, level, steps, lane in use), and what a hit leaves for the caller
 (OX, OY, OZ, DX, DY, DZ, IDX, IDY, TSL, DU, DV, IGD, T, P2, IP2, STEPS, ACT,
- TA, TB, FA, FB, A1, A2, EVENT) = range(24)
-NROWS = 24
+ TA, TB, FA, FB, A1, A2, EVENT, CAST) = range(25)
+NROWS = 25  # CAST: the caller's own (which cast the lane walks); walk_step leaves it alone
 
 #: values of row EVENT: the lane's cast met a facet, left the slab above, or was lost
 HIT, ESCAPED, LOST = 1.0, 2.0, 3.0
@@ -91,13 +91,28 @@ def _walk_codegen():
         sx, sy, isx, isy, nx, ny, inx, iny, cells, hmin, hmax, tol, ptop, maxsteps = (
             const(i) for i in range(NCONST))
         ox, oy, oz, dx, dy, dz = (v.load(at(r)) for r in (OX, OY, OZ, DX, DY, DZ))
-        t, p2, ip2, steps, tsl = (v.load(at(r)) for r in (T, P2, IP2, STEPS, TSL))
+        idx, idy, tsl, du, dv, igd = (v.load(at(r)) for r in (IDX, IDY, TSL, DU, DV, IGD))
         live = v.load(at(ACT)) > 0.0
+        hit_slot = cgutils.alloca_once(builder, ir.VectorType(ir.IntType(1), LANES))
+
+        # the steps loop here, in registers, until a lane's cast ends: what changes from step
+        # to step (t, the level, the step count) is carried by phi nodes
+        vty = ir.VectorType(ir.DoubleType(), LANES)
+        first = builder.block
+        loop = builder.append_basic_block("walk.step")
+        done = builder.append_basic_block("walk.end")
+        start = [v.load(at(r)) for r in (T, P2, IP2, STEPS)]
+        builder.branch(loop)
+        builder.position_at_end(loop)
+        phis = [builder.phi(vty) for _ in start]
+        for phi, x in zip(phis, start, strict=True):
+            phi.add_incoming(x.v, first)
+        t, p2, ip2, steps = (Vec(v, phi) for phi in phis)
 
         # -- the step of _intersect: node under the ray at the current level ------------------
         z = oz + t * dz
-        fx, tx = _axis(v, ox, dx, v.load(at(IDX)), t, sx * p2, isx * ip2)
-        fy, ty = _axis(v, oy, dy, v.load(at(IDY)), t, sy * p2, isy * ip2)
+        fx, tx = _axis(v, ox, dx, idx, t, sx * p2, isx * ip2)
+        fy, ty = _axis(v, oy, dy, idy, t, sy * p2, isy * ip2)
         txy = v.min(tx, ty)
         t1 = v.min(txy, tsl)
         wl = nx * ip2
@@ -124,8 +139,7 @@ def _walk_codegen():
 
         # -- _cell at the finest level, skipped when no lane is there (about a third of the
         # steps of four lanes); lanes elsewhere read cell (0, 0), which stays in cache --
-        hit_slot = cgutils.alloca_once_value(builder, ir.Constant(ir.VectorType(ir.IntType(1),
-                                                                                LANES), None))
+        builder.store(ir.Constant(ir.VectorType(ir.IntType(1), LANES), None), hit_slot)
         with builder.if_then(v.any(leaf), likely=True):
             cxl = v.where(leaf, cx, 0.0)
             cyl = v.where(leaf, cy, 0.0)
@@ -135,7 +149,6 @@ def _walk_codegen():
             h10 = v.gather(hdata, cyl * nx + i1)
             h01 = v.gather(hdata, j1 * nx + cxl)
             h11 = v.gather(hdata, j1 * nx + i1)
-            du, dv, igd = v.load(at(DU)), v.load(at(DV)), v.load(at(IGD))
             ua = (ox + t * dx - fx * sx) * isx
             va = (oy + t * dy - fy * sy) * isy
             g0 = ua - va
@@ -168,13 +181,19 @@ def _walk_codegen():
         crossed = leaf & ~hit
         adv = (go & clear) | crossed
         climb = ((go & clear & up) | crossed) & (p2 < ptop)
-        v.store(at(T), v.where(adv, t1, t))
-        v.store(at(P2), p2 * v.where(climb, 2.0, v.where(desc, 0.5, 1.0)))
-        v.store(at(IP2), ip2 * v.where(climb, 0.5, v.where(desc, 2.0, 1.0)))
-        v.store(at(STEPS), steps + v.where(live, 1.0, 0.0))
-        event = v.where(hit, HIT, v.where(esc, ESCAPED, v.where(lost, LOST, 0.0)))
-        v.store(at(EVENT), event)
-        return v.bits(hit | esc | lost)
+        new = (v.where(adv, t1, t), p2 * v.where(climb, 2.0, v.where(desc, 0.5, 1.0)),
+               ip2 * v.where(climb, 0.5, v.where(desc, 2.0, 1.0)), steps + v.where(live, 1.0, 0.0))
+        ended = hit | esc | lost
+        last = builder.block
+        for phi, x in zip(phis, new, strict=True):
+            phi.add_incoming(x.v, last)
+        builder.cbranch(builder.or_(v.any(ended), builder.not_(v.any(live))), done, loop)
+
+        builder.position_at_end(done)
+        for r, x in zip((T, P2, IP2, STEPS), new, strict=True):
+            v.store(at(r), x)
+        v.store(at(EVENT), v.where(hit, HIT, v.where(esc, ESCAPED, v.where(lost, LOST, 0.0))))
+        return v.bits(ended)
 
     return codegen
 

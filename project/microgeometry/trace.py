@@ -163,8 +163,9 @@ def _run(surface: Heightfield, dirs: NDArray, per: int, seed: np.uint64, start: 
 
 #: rays per part of run_parallel: a ray costs about a microsecond (more on steep surfaces)
 _GRAIN = 128
-#: rays launched at a time by _trace_packets (_launch_block)
-_BLOCK = 512
+#: paths traced together by _trace_packets: their casts are walked, then their facet events
+#: met, in rounds (a few kB of state per block, which stays in the L1 and L2 caches)
+_BLOCK = 256
 
 
 @loopjit
@@ -213,52 +214,82 @@ def _trace_kernel(first, stop, order, dirs, per, seed, start, h, pyr, offs, top,
                     out_abs, out_lost)
 
 
-@njit
-def _begin_cast(S, k, ox, oy, oz, dx, dy, dz, G):
-    """Start lane k of the packet S on the cast from o along d (the set-up of _intersect)."""
+# -- the packet tracer ------------------------------------------------------------------------
+# _trace_packets traces the paths of a block of rays in rounds. A round walks every queued
+# cast (a ray segment from its origin to its first facet, or out of the slab) in packets of
+# LANES lanes (_walk_casts); then one loop meets every cast's facet event (_trace_packets):
+# Fresnel or diffuse scattering and roulette for a hit, whose path goes on with a new cast
+# queued for the next round, or the path's end. The events of a round are independent, so
+# their chains of divisions and square roots overlap instead of stalling the walk one by one.
+# Each path meets the same operations, in the same order, as in _trace_kernel: the same bits.
+
+# rows of the cast queue C: origin, direction, the per-cast constants of _cast_setup, the path
+_CO, _CD, _CINV, _CTSL, _CDU, _CPATH = 0, 3, 6, 8, 9, 12
+_CROWS = 13
+# rows of the results R of a round: the event, and the crossing piece of a hit (_facet_hit)
+_RROWS = 7
+
+
+@njit(inline="always")
+def _queue_cast(C, c, ox, oy, oz, dx, dy, dz, path, G):
+    """Queue the cast from o along d of path ``path`` as cast c, with its per-cast set-up."""
     inv_dx, inv_dy, t_slab, du, dv, igd = _cast_setup(dx, dy, dz, oz, G[pk.G_SX], G[pk.G_SY],
                                                       G[pk.G_HMIN], G[pk.G_HMAX], G[pk.G_TOL])
-    S[pk.OX, k] = ox
-    S[pk.OY, k] = oy
-    S[pk.OZ, k] = oz
-    S[pk.DX, k] = dx
-    S[pk.DY, k] = dy
-    S[pk.DZ, k] = dz
-    S[pk.IDX, k] = inv_dx
-    S[pk.IDY, k] = inv_dy
-    S[pk.TSL, k] = t_slab
-    S[pk.DU, k] = du
-    S[pk.DV, k] = dv
-    S[pk.IGD, k] = igd
-    S[pk.T, k] = 0.0
-    S[pk.P2, k] = 1.0
-    S[pk.IP2, k] = 1.0
-    S[pk.STEPS, k] = 0.0
-    S[pk.ACT, k] = 1.0
+    C[_CO, c] = ox
+    C[_CO + 1, c] = oy
+    C[_CO + 2, c] = oz
+    C[_CD, c] = dx
+    C[_CD + 1, c] = dy
+    C[_CD + 2, c] = dz
+    C[_CINV, c] = inv_dx
+    C[_CINV + 1, c] = inv_dy
+    C[_CTSL, c] = t_slab
+    C[_CDU, c] = du
+    C[_CDU + 1, c] = dv
+    C[_CDU + 2, c] = igd
+    C[_CPATH, c] = path
+
+
+_TO_LANE = (pk.OX, pk.OY, pk.OZ, pk.DX, pk.DY, pk.DZ, pk.IDX, pk.IDY, pk.TSL, pk.DU, pk.DV,
+            pk.IGD)
+_FROM_LANE = (pk.EVENT, pk.TA, pk.TB, pk.FA, pk.FB, pk.A1, pk.A2)
 
 
 @njit
-def _launch_block(first, stop, order, dirs, per, seed, start, zs, lx, ly, buf, sbuf):
-    """Launch rays order[first] .. order[stop - 1] into buf (origin, direction) and sbuf.
-
-    One pass whose iterations are independent: the reads of dirs (by incidence, in the
-    coherent order of the rays: scattered in memory) overlap, instead of stalling the
-    walk one at a time.
-    """
-    for i in range(first, stop):
-        r = order[i]
-        j = i - first
-        buf[j, 0], buf[j, 1], buf[j, 2], buf[j, 3], buf[j, 4], buf[j, 5], sbuf[j] = _launch(
-            dirs, r // per, zs, lx, ly, _stream(seed, start + np.uint64(r), _TAG_RAY))
+def _walk_casts(S, C, R, ncast, h, pyr, G):
+    """Walk casts 0 .. ncast - 1 of the queue C to their ends; R[:, c]: how cast c ended."""
+    nxt = 0
+    live = 0
+    while True:
+        for k in range(pk.LANES):  # give idle lanes the next casts
+            if S[pk.ACT, k] == 0.0 and nxt < ncast:
+                for q in range(len(_TO_LANE)):
+                    S[_TO_LANE[q], k] = C[q, nxt]
+                S[pk.T, k] = 0.0
+                S[pk.P2, k] = 1.0
+                S[pk.IP2, k] = 1.0
+                S[pk.STEPS, k] = 0.0
+                S[pk.ACT, k] = 1.0
+                S[pk.CAST, k] = nxt
+                nxt += 1
+                live += 1
+        if live == 0:
+            return
+        m = walk_step(S, h, pyr, G)
+        while m != 0:
+            k = trailing_zeros(m)
+            m &= m - 1
+            c = int(S[pk.CAST, k])
+            for q in range(_RROWS):
+                R[q, c] = S[_FROM_LANE[q], k]
+            S[pk.ACT, k] = 0.0
+            live -= 1
 
 
 @loopjit
 def _trace_packets(first, stop, order, dirs, per, seed, start, h, pyr, G, code, params,
                    rr, max_bounces, out_dir, out_w, out_b, out_abs, out_lost):
-    # _trace_kernel with the walks of LANES paths interleaved in one packet (_packets.py):
-    # each walk_step advances every lane by one step of its own walk; the lanes whose cast
-    # ended meet their facet event here, one by one, and start their next cast or path.
-    # Every ray's path, and so every output, has the bits of _trace_kernel.
+    # Rays order[first] .. order[stop - 1], as _trace_kernel, in blocks of _BLOCK paths.
     ny, nx = h.shape
     sx = G[pk.G_SX]
     sy = G[pk.G_SY]
@@ -272,65 +303,50 @@ def _trace_packets(first, stop, order, dirs, per, seed, start, h, pyr, G, code, 
     kext = params[1]
     alb = params[2]
     S = np.zeros((pk.NROWS, pk.LANES))
-    ray = np.zeros(pk.LANES, np.int64)
-    w = np.zeros(pk.LANES)
-    absorbed = np.zeros(pk.LANES)
-    bounces = np.zeros(pk.LANES, np.int64)
-    strm = np.zeros(pk.LANES, np.uint64)
-    buf = np.empty((_BLOCK, 6))
-    sbuf = np.empty(_BLOCK, np.uint64)
-    nxt = first
-    block = first - _BLOCK  # rays block .. block + _BLOCK - 1 are launched in buf
-    live = 0
-    for k in range(pk.LANES):
-        S[pk.ACT, k] = 0.0
-    while True:
-        # fill the idle lanes with new paths
-        for k in range(pk.LANES):
-            if S[pk.ACT, k] == 0.0 and nxt < stop:
-                if nxt == block + _BLOCK:
-                    block = nxt
-                    _launch_block(block, min(stop, block + _BLOCK), order, dirs, per, seed,
-                                  start, zs, lx, ly, buf, sbuf)
-                j = nxt - block
-                ray[k] = order[nxt]
-                strm[k] = sbuf[j]
-                w[k] = 1.0
-                absorbed[k] = 0.0
-                bounces[k] = 0
-                _begin_cast(S, k, buf[j, 0], buf[j, 1], buf[j, 2], buf[j, 3], buf[j, 4],
-                            buf[j, 5], G)
-                nxt += 1
-                live += 1
-        if live == 0:
-            break
-        m = walk_step(S, h, pyr, G)
-        while m != 0:
-            k = trailing_zeros(m)
-            m &= m - 1
-            event = S[pk.EVENT, k]
-            dx = S[pk.DX, k]
-            dy = S[pk.DY, k]
-            dz = S[pk.DZ, k]
-            lost = 0.0
-            if event == pk.HIT and bounces[k] < max_bounces:
-                bounces[k] += 1
-                th, gx, gy, gz = _facet_hit(S[pk.TA, k], S[pk.TB, k], S[pk.FA, k],
-                                            S[pk.FB, k], S[pk.A1, k], S[pk.A2, k], sx, sy)
-                px = S[pk.OX, k] + th * dx
-                py = S[pk.OY, k] + th * dy
-                pz = S[pk.OZ, k] + th * dz
-                dx, dy, dz, w[k], absorbed[k], strm[k] = _scatter(
-                    code, ior, kext, alb, dx, dy, dz, gx, gy, gz, True, w[k], absorbed[k], rr,
-                    strm[k])
-                if w[k] != 0.0:
-                    ox, oy, oz = _next_origin(px, py, pz, eps, gx, gy, gz, lx, ly)
-                    _begin_cast(S, k, ox, oy, oz, dx, dy, dz, G)
-                    continue
-            elif event != pk.ESCAPED:  # lost, or a hit beyond the bounce cap
-                lost = w[k]
-                w[k] = 0.0
-            _store_path(ray[k], w[k], dx, dy, dz, bounces[k], absorbed[k], lost, out_dir, out_w,
-                        out_b, out_abs, out_lost)
-            S[pk.ACT, k] = 0.0
-            live -= 1
+    C = np.empty((_CROWS, _BLOCK))
+    R = np.empty((_RROWS, _BLOCK))
+    w = np.empty(_BLOCK)
+    absorbed = np.empty(_BLOCK)
+    bounces = np.empty(_BLOCK, np.int64)
+    strm = np.empty(_BLOCK, np.uint64)
+    for b0 in range(first, stop, _BLOCK):
+        n = min(_BLOCK, stop - b0)
+        for j in range(n):
+            r = order[b0 + j]
+            ox, oy, oz, dx, dy, dz, strm[j] = _launch(
+                dirs, r // per, zs, lx, ly, _stream(seed, start + np.uint64(r), _TAG_RAY))
+            w[j] = 1.0
+            absorbed[j] = 0.0
+            bounces[j] = 0
+            _queue_cast(C, j, ox, oy, oz, dx, dy, dz, j, G)
+        ncast = n
+        while ncast > 0:
+            _walk_casts(S, C, R, ncast, h, pyr, G)
+            queued = 0  # the next round's casts overwrite this round's, never ahead of them
+            for c in range(ncast):
+                j = int(C[_CPATH, c])
+                dx = C[_CD, c]
+                dy = C[_CD + 1, c]
+                dz = C[_CD + 2, c]
+                lost = 0.0
+                if R[0, c] == pk.HIT and bounces[j] < max_bounces:
+                    bounces[j] += 1
+                    th, gx, gy, gz = _facet_hit(R[1, c], R[2, c], R[3, c], R[4, c], R[5, c],
+                                                R[6, c], sx, sy)
+                    px = C[_CO, c] + th * dx
+                    py = C[_CO + 1, c] + th * dy
+                    pz = C[_CO + 2, c] + th * dz
+                    dx, dy, dz, w[j], absorbed[j], strm[j] = _scatter(
+                        code, ior, kext, alb, dx, dy, dz, gx, gy, gz, True, w[j], absorbed[j],
+                        rr, strm[j])
+                    if w[j] != 0.0:
+                        ox, oy, oz = _next_origin(px, py, pz, eps, gx, gy, gz, lx, ly)
+                        _queue_cast(C, queued, ox, oy, oz, dx, dy, dz, j, G)
+                        queued += 1
+                        continue
+                elif R[0, c] != pk.ESCAPED:  # lost, or a hit beyond the bounce cap
+                    lost = w[j]
+                    w[j] = 0.0
+                _store_path(order[b0 + j], w[j], dx, dy, dz, bounces[j], absorbed[j], lost,
+                            out_dir, out_w, out_b, out_abs, out_lost)
+            ncast = queued
