@@ -124,3 +124,46 @@ def test_other_lane_widths_give_the_same_bits(lanes, tmp_path):
 
 def test_lanes_is_the_vector_width():
     assert pk.LANES in (2, 4, 8)
+
+
+_CROSS = textwrap.dedent("""
+    import re
+    import numba
+    import numpy as np
+    from project.microgeometry import _packets as pk
+    from project.microgeometry._packets import walk_step
+
+    @numba.njit(cache=False)
+    def step(S, h, pyr, G):
+        return walk_step(S, h, pyr, G)
+
+    sig = (numba.float64[:, ::1], numba.float64[:, ::1], numba.float32[::1], numba.float64[::1])
+    step.compile(sig)
+    asm = step.inspect_asm(sig)
+    print(pk.LANES, *(len(re.findall(r"\\tv\\w+pd\\t[^\\n]*%" + r, asm)) for r in ("zmm", "ymm")))
+""")
+
+
+@pytest.mark.parametrize("cpu, features, lanes, reg", [
+    ("skylake-avx512", "+avx512f,+avx512dq,+avx512vl,+avx512bw,+avx2,+avx,+fma,+sse4.2", 8,
+     "zmm"),
+    ("haswell", "+avx2,+avx,+fma,+sse4.2", 4, "ymm"),
+])
+def test_packet_step_at_the_width_of_the_target(tmp_path, cpu, features, lanes, reg):
+    # compiled (never run) in a child process whose numba targets the named CPU: the packet
+    # holds one register of doubles, and its arithmetic is on that register width
+    import platform
+
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        pytest.skip("numba compiles for the host's architecture: x86-64 needs an x86-64 host")
+    env = dict(os.environ, NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES=features,
+               NUMBA_CACHE_DIR=str(tmp_path), PYTHONPATH=str(ROOT))
+    r = subprocess.run([sys.executable, "-c", _CROSS], env=env, capture_output=True, text=True,
+                       timeout=600)
+    if r.returncode and "No available targets" in r.stderr:
+        pytest.skip("this LLVM build has no x86 target")
+    assert r.returncode == 0, r.stderr[-2000:]
+    got, zmm, ymm = (int(x) for x in r.stdout.split())
+    assert got == lanes
+    wide, other = (zmm, ymm) if reg == "zmm" else (ymm, zmm)
+    assert wide > 100 and other < wide // 10, (zmm, ymm)
