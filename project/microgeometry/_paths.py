@@ -16,7 +16,8 @@ in "maximum mipmap" height-field ray casting): at level L the ray segment inside
 node is skipped if it stays above the node's max height (then the walk climbs one level),
 otherwise it descends; at level 0 the two triangles of the cell are intersected exactly (the
 surface is piecewise linear along the segment). Coordinates are unwrapped (periodic tiling)
-and node indices are taken modulo the grid.
+and node indices are taken modulo the grid. ``_packets.py`` runs the same walk for several
+rays at once in vector registers, with the same bits.
 """
 
 from __future__ import annotations

@@ -1,13 +1,15 @@
-"""Paths of rays through a specimen: :func:`trace`, :class:`Paths`, the height-field loop.
+"""Paths of rays through a specimen: :func:`trace`, :class:`Paths`, the height-field loops.
 
-The numba path loop of height fields is ``_trace_kernel``.
-
-``_trace_kernel`` follows every ray from its start above the surface through the max-pyramid
-walk to the next facet, the facet event (Fresnel mirror or cosine-diffuse bounce, then
-Russian roulette) and the next origin, until it escapes, dies or is cut off. These pieces,
-and the per-ray random streams, are the shared kernels of ``_paths.py``; a
-:class:`~project.microgeometry.Scene` is traced by its own loop (``scene.py``) and
-:class:`~project.microgeometry.MicroBRDF` facets bounce by bounce (``wavefront.py``).
+Height fields are traced by ``_trace_packets``: it follows every ray from its start above
+the surface through the max-pyramid walk to the next facet, the facet event (Fresnel mirror
+or cosine-diffuse bounce, then Russian roulette) and the next origin, until it escapes, dies
+or is cut off, walking as many rays at once as the CPU's vector registers hold doubles
+(``_packets.py``). ``_trace_kernel`` does the same one ray at a time, with the same bits:
+the reference of the tests, and the tracer of pyramids too large for the packets' int32
+indices. The pieces of both, and the per-ray random streams, are the shared kernels of
+``_paths.py``; a :class:`~project.microgeometry.Scene` is traced by its own loop
+(``scene.py``) and :class:`~project.microgeometry.MicroBRDF` facets bounce by bounce
+(``wavefront.py``).
 """
 
 from __future__ import annotations
