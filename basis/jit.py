@@ -21,6 +21,8 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
+from ._vector import host_lanes
+
 #: Every kernel: compiled once, cached on disk next to the module, and run without the GIL
 #: so that :func:`run_parallel` can run several at once.
 njit = partial(numba.njit, cache=True, fastmath=False, nogil=True)
@@ -163,14 +165,17 @@ def wide_loops(typingctx):
 # Every product and difference is a separate IEEE operation in the order written (no fused
 # multiply-add), so the values are the bits of the scalar code with the same expression.
 
-#: Lanes of the vector operations below: one zmm register on a CPU with avx512f, two ymm
-#: halves on AVX2. Four lanes (one ymm) on an AVX2 machine (AMD EPYC) were 4-14 % slower for
-#: the harmonics (L = 16, 32), the Zernike functions (order 16) and a coefficient matrix
-#: (order 8), and level (within the spread) for Zernike order 8, in CPU time of one thread:
-#: each operation's two independent halves presumably hide the latency of the chains of
-#: dependent steps. The operations work for any power of two (the tests of the bases and
-#: of the evaluator give the same bits at 4 lanes).
-LANES = 8
+#: Lanes of the vector operations below, chosen for the compile target: two of its vector
+#: registers of doubles (:func:`basis._vector.host_lanes`), at most 8. That is one zmm
+#: register on a CPU with avx512f, two ymm halves on AVX2, two xmm without AVX. Four lanes
+#: (one ymm) on an AVX2 machine (AMD EPYC) were 4-14 % slower than eight for the harmonics
+#: (L = 16, 32), the Zernike functions (order 16) and a coefficient matrix (order 8), and
+#: level (within the spread) for Zernike order 8, in CPU time of one thread: each
+#: operation's two independent halves presumably hide the latency of the chains of
+#: dependent steps. Sixteen (two zmm) are not offered: the Zernike kernel supports eight at
+#: most. The operations work for any power of two (the tests of the bases and of the
+#: evaluator give the same bits at 4 lanes).
+LANES = min(8, 2 * host_lanes())
 
 _V8 = ir.VectorType(ir.DoubleType(), LANES)
 

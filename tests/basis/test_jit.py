@@ -231,6 +231,11 @@ for k, sig in ((lanes, (f1, f1, f1, f1, f1)), (loops, (f2, f1, f1))):
 """
 
 
+#: the features of the CPUs compiled for (the lane count follows them: basis._vector.host_lanes)
+_FEATURES = {"skylake-avx512": "+avx512f,+avx512dq,+avx512vl,+avx512bw,+avx2,+avx,+fma,+sse4.2",
+             "haswell": "+avx2,+avx,+fma,+sse4.2"}
+
+
 def _cross_compile(cpu: str, tmp_path) -> list[tuple[int, int]]:
     import os
     import platform
@@ -241,7 +246,7 @@ def _cross_compile(cpu: str, tmp_path) -> list[tuple[int, int]]:
 
     if platform.machine().lower() not in ("x86_64", "amd64"):
         pytest.skip("numba compiles for the host's architecture: x86-64 needs an x86-64 host")
-    env = dict(os.environ, NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES="",
+    env = dict(os.environ, NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES=_FEATURES[cpu],
                NUMBA_CACHE_DIR=str(tmp_path))
     r = subprocess.run([sys.executable, "-c", _CROSS], env=env, capture_output=True,
                        text=True, timeout=300)
@@ -265,3 +270,55 @@ def test_lane_operations_use_ymm_pairs_on_avx2(tmp_path):
     (lane_zmm, lane_ymm), (loop_zmm, loop_ymm) = _cross_compile("haswell", tmp_path)
     assert lane_zmm == 0 and lane_ymm > 0, (lane_zmm, lane_ymm)
     assert loop_zmm == 0 and loop_ymm > 0, (loop_zmm, loop_ymm)
+
+
+# -- a CPU without AVX: four lanes, the same bits -----------------------------------------------
+_SSE = r"""
+import sys
+import numpy as np
+import basis
+from basis.jit import LANES
+rng = np.random.default_rng(7)
+d = rng.normal(size=(1000, 3))
+d[:, 2] = np.abs(d[:, 2])
+d /= np.linalg.norm(d, axis=1, keepdims=True)
+m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)), reciprocal=False)
+iso = m.to_isotropic()  # the block evaluator (evaluate.py)
+out = [basis.SphericalHarmonics(16).eval(d), basis.HemiZernike(12).eval(d),
+       m.eval(d[:500], d[500:]), iso.eval(d[:500], d[500:])]
+np.savez(sys.argv[1], lanes=LANES, *out)
+"""
+
+
+def test_lanes_follow_the_target_and_keep_the_bits(tmp_path):
+    # compiled for a CPU with SSE only (two doubles per register: four lanes) and run here
+    # (an SSE program runs on any x86-64 CPU): the harmonics, Zernike functions and a
+    # coefficient matrix give the bits of this process's kernels, whatever its lane count
+    import os
+    import platform
+    import subprocess
+    import sys
+
+    if platform.machine().lower() not in ("x86_64", "amd64"):
+        pytest.skip("the SSE-only build runs on x86-64 only")
+    env = dict(os.environ, NUMBA_CPU_NAME="x86-64",
+               NUMBA_CPU_FEATURES="+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+cx16",
+               NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    path = tmp_path / "sse.npz"
+    r = subprocess.run([sys.executable, "-c", _SSE, str(path)], env=env, capture_output=True,
+                       text=True, timeout=600)
+    assert r.returncode == 0, r.stderr[-2000:]
+    got = np.load(path)
+    assert int(got["lanes"]) == 4
+    import basis
+
+    rng = np.random.default_rng(7)
+    d = rng.normal(size=(1000, 3))
+    d[:, 2] = np.abs(d[:, 2])
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)), reciprocal=False)
+    iso = m.to_isotropic()
+    want = [basis.SphericalHarmonics(16).eval(d), basis.HemiZernike(12).eval(d),
+            m.eval(d[:500], d[500:]), iso.eval(d[:500], d[500:])]
+    for i, w in enumerate(want):
+        assert np.array_equal(got[f"arr_{i}"], w), i
