@@ -282,7 +282,8 @@ rng = np.random.default_rng(7)
 d = rng.normal(size=(1000, 3))
 d[:, 2] = np.abs(d[:, 2])
 d /= np.linalg.norm(d, axis=1, keepdims=True)
-m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)), reciprocal=False)
+m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)),
+                            reciprocal=False)
 iso = m.to_isotropic()  # the block evaluator (evaluate.py)
 out = [basis.SphericalHarmonics(16).eval(d), basis.HemiZernike(12).eval(d),
        m.eval(d[:500], d[500:]), iso.eval(d[:500], d[500:])]
@@ -298,6 +299,8 @@ def test_lanes_follow_the_target_and_keep_the_bits(tmp_path):
     import platform
     import subprocess
     import sys
+
+    import pytest
 
     if platform.machine().lower() not in ("x86_64", "amd64"):
         pytest.skip("the SSE-only build runs on x86-64 only")
@@ -316,7 +319,8 @@ def test_lanes_follow_the_target_and_keep_the_bits(tmp_path):
     d = rng.normal(size=(1000, 3))
     d[:, 2] = np.abs(d[:, 2])
     d /= np.linalg.norm(d, axis=1, keepdims=True)
-    m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)), reciprocal=False)
+    m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)),
+                                reciprocal=False)
     iso = m.to_isotropic()
     want = [basis.SphericalHarmonics(16).eval(d), basis.HemiZernike(12).eval(d),
             m.eval(d[:500], d[500:]), iso.eval(d[:500], d[500:])]
