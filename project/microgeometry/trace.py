@@ -85,7 +85,8 @@ def trace(surface: Heightfield, wi: ArrayLike, rays: int, *, seed: int = 0,
     ----------
     surface : Heightfield or Scene
         Specimen (its ``material`` scatters at every facet). :class:`MicroBRDF` facets are
-        traced bounce by bounce (``wavefront.py``), the others path by path in numba.
+        traced bounce by bounce (``wavefront.py``), the others path by path in numba
+        (height fields several rays at a time, in the CPU's vector registers).
     wi : (3,) array_like of float
         Unit vector towards the light, z > 0.
     rays : int
@@ -252,6 +253,8 @@ def _queue_cast(C, c, ox, oy, oz, dx, dy, dz, path, G):
     C[_CPATH, c] = path
 
 
+# row q of the queue goes to row _TO_LANE[q] of a lane; row _FROM_LANE[q] of a lane whose
+# cast ended to row q of the results
 _TO_LANE = (pk.OX, pk.OY, pk.OZ, pk.DX, pk.DY, pk.DZ, pk.IDX, pk.IDY, pk.TSL, pk.DU, pk.DV,
             pk.IGD)
 _FROM_LANE = (pk.EVENT, pk.TA, pk.TB, pk.FA, pk.FB, pk.A1, pk.A2)
