@@ -5,9 +5,12 @@ branches on where the ray is (climb, descend, test a cell) and the CPU mispredic
 share of these branches, which costs more than the step's arithmetic. Here one step of
 LANES independent rays is one branch-free sequence of vector operations (:mod:`basis._vector`):
 every lane computes its grid step, its pyramid node, the decision and, for lanes at the
-finest level, the exact test of the cell's two triangles; a select keeps what each lane
-needs. The kernel that calls :func:`walk_step` handles only the lanes whose cast ended
-(hit, escaped or lost) and starts their next cast.
+finest level, the exact test of the cell's two triangles (skipped when no lane is there);
+a select keeps what each lane needs. :func:`walk_step` repeats such steps, its state in
+registers, until some lane's cast ends (hit, escaped or lost); its caller
+(``trace._walk_casts``) hands that lane its next cast. Two packets stepped in the same loop
+(independent chains for the CPU to overlap) were slower on an AVX2 machine with sixteen
+vector registers: their operands spilled to the stack.
 
 LANES is the vector width of the CPU (:func:`basis._vector.host_lanes`: 8 doubles with
 AVX-512, 4 with AVX2, 2 otherwise). Every lane runs the operations of ``_intersect`` in
