@@ -21,7 +21,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from ._vector import host_lanes
+from .simd import host_lanes
 
 #: Every kernel: compiled once, cached on disk next to the module, and run without the GIL
 #: so that :func:`run_parallel` can run several at once.
@@ -166,7 +166,7 @@ def wide_loops(typingctx):
 # multiply-add), so the values are the bits of the scalar code with the same expression.
 
 #: Lanes of the vector operations below, chosen for the compile target: two of its vector
-#: registers of doubles (:func:`basis._vector.host_lanes`), at most 8. That is one zmm
+#: registers of doubles (:func:`basis.simd.host_lanes`), at most 8. That is one zmm
 #: register on a CPU with avx512f, two ymm halves on AVX2, two xmm without AVX. Four lanes
 #: (one ymm) on an AVX2 machine (AMD EPYC) were 4-14 % slower than eight for the harmonics
 #: (L = 16, 32), the Zernike functions (order 16) and a coefficient matrix (order 8), and

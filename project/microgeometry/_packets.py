@@ -3,7 +3,7 @@
 The ray-by-ray walk (``_paths._intersect``) spends most of its time waiting: each step
 branches on where the ray is (climb, descend, test a cell) and the CPU mispredicts a good
 share of these branches, which costs more than the step's arithmetic. Here one step of
-LANES independent rays is one branch-free sequence of vector operations (:mod:`basis._vector`):
+LANES independent rays is one branch-free sequence of vector operations (:mod:`basis.simd`):
 every lane computes its grid step, its pyramid node, the decision and, for lanes at the
 finest level, the exact test of the cell's two triangles (skipped when no lane is there);
 a select keeps what each lane needs. :func:`walk_step` repeats such steps, its state in
@@ -12,7 +12,7 @@ registers, until some lane's cast ends (hit, escaped or lost); its caller
 (independent chains for the CPU to overlap) were slower on an AVX2 machine with sixteen
 vector registers: their operands spilled to the stack.
 
-LANES is the vector width of the CPU (:func:`basis._vector.host_lanes`: 8 doubles with
+LANES is the vector width of the CPU (:func:`basis.simd.host_lanes`: 8 doubles with
 AVX-512, 4 with AVX2, 2 otherwise). Every lane runs the operations of ``_intersect`` in
 the same order, so a ray meets the same facet at the same bits whatever the width and
 whatever its neighbours in the packet do (tests compare the two tracers bit for bit).
@@ -31,7 +31,7 @@ from numba import types
 from numba.core import cgutils
 from numba.extending import intrinsic
 
-from basis._vector import Lanes, Mask, Vec, host_lanes
+from basis.simd import Lanes, Mask, Vec, host_lanes
 
 #: rays per packet: the doubles in one vector register of the CPU
 LANES = host_lanes()

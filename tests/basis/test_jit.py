@@ -231,7 +231,7 @@ for k, sig in ((lanes, (f1, f1, f1, f1, f1)), (loops, (f2, f1, f1))):
 """
 
 
-#: the features of the CPUs compiled for (the lane count follows them: basis._vector.host_lanes)
+#: the features of the CPUs compiled for (the lane count follows them: basis.simd.host_lanes)
 _FEATURES = {"skylake-avx512": "+avx512f,+avx512dq,+avx512vl,+avx512bw,+avx2,+avx,+fma,+sse4.2",
              "haswell": "+avx2,+avx,+fma,+sse4.2"}
 

@@ -14,6 +14,9 @@ registers with AVX-512, full-width compare results with AVX2.
 :func:`host_lanes` is the width to use: the doubles in one vector register of the CPU that
 numba compiles for (numba caches kernels per CPU and features, so a cached kernel never
 runs at a width chosen for another machine).
+
+Public, as :mod:`basis.jit` is, so that the kernels of ``project`` (the packet walk of the
+microgeometry tracer) and of extensions share it.
 """
 
 from __future__ import annotations
@@ -21,6 +24,8 @@ from __future__ import annotations
 import llvmlite.binding as llvm
 from llvmlite import ir
 from numba.core import cgutils, config
+
+__all__ = ["Lanes", "Mask", "Vec", "host_lanes"]
 
 _D = ir.DoubleType()
 _I32 = ir.IntType(32)
@@ -101,6 +106,7 @@ class Lanes:
         return Vec(self, self.b.call(fn, [v.v for v in vals]))
 
     def floor(self, x: Vec) -> Vec:
+        """Return ``floor(x)`` lane-wise (exact)."""
         return self.call("llvm.floor", x)
 
     def where(self, m: Mask, a, b) -> Vec:
@@ -193,8 +199,9 @@ class Vec:
         return self._cmp(">=", o)
 
     def eq(self, o) -> Mask:
+        """Return ``self == o`` lane-wise (false where a lane holds NaN)."""
         return self._cmp("==", o)
 
     def ne(self, o) -> Mask:
-        """``!=`` as Python's on floats: true when a lane holds NaN."""
+        """Return ``self != o`` lane-wise, as Python's on floats: true where a lane is NaN."""
         return Mask(self.lanes, self.lanes.b.fcmp_unordered("!=", self.v, self._o(o)))

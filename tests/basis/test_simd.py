@@ -1,4 +1,4 @@
-"""basis._vector: lane-wise expressions emit the IEEE operations of the scalar code.
+"""basis.simd: lane-wise expressions emit the IEEE operations of the scalar code.
 
 The reference is the same expression compiled by numba as scalar code (Python semantics of
 comparisons, numba's min), evaluated lane by lane: results must be equal bit for bit,
@@ -14,8 +14,8 @@ from numba import types
 from numba.core import config
 from numba.extending import intrinsic
 
-from basis import _vector
-from basis._vector import Lanes, host_lanes
+from basis import simd
+from basis.simd import Lanes, host_lanes
 
 W = 4
 
@@ -89,6 +89,6 @@ def test_host_lanes_follows_the_compile_target(monkeypatch, features, name, lane
 def test_host_lanes_of_this_machine_matches_its_features():
     if config.CPU_FEATURES or config.CPU_NAME:
         pytest.skip("NUMBA_CPU_NAME / NUMBA_CPU_FEATURES set: not the host")
-    flags = set(_vector.llvm.get_host_cpu_features().flatten().split(","))
+    flags = set(simd.llvm.get_host_cpu_features().flatten().split(","))
     assert host_lanes() == (8 if "+avx512f" in flags else 4 if "+avx" in flags else 2)
 
