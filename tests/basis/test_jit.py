@@ -273,11 +273,10 @@ def test_lane_operations_use_ymm_pairs_on_avx2(tmp_path):
 
 
 # -- a CPU without AVX: four lanes, the same bits -----------------------------------------------
-_SSE = r"""
-import sys
+# the evaluations compared: run in the SSE-only child and in this process alike
+_EVALS = r"""
 import numpy as np
 import basis
-from basis.jit import LANES
 rng = np.random.default_rng(7)
 d = rng.normal(size=(1000, 3))
 d[:, 2] = np.abs(d[:, 2])
@@ -287,6 +286,10 @@ m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)),
 iso = m.to_isotropic()  # the block evaluator (evaluate.py)
 out = [basis.SphericalHarmonics(16).eval(d), basis.HemiZernike(12).eval(d),
        m.eval(d[:500], d[500:]), iso.eval(d[:500], d[500:])]
+"""
+_SSE = _EVALS + r"""
+import sys
+from basis.jit import LANES
 np.savez(sys.argv[1], lanes=LANES, *out)
 """
 
@@ -313,16 +316,7 @@ def test_lanes_follow_the_target_and_keep_the_bits(tmp_path):
     assert r.returncode == 0, r.stderr[-2000:]
     got = np.load(path)
     assert int(got["lanes"]) == 4
-    import basis
-
-    rng = np.random.default_rng(7)
-    d = rng.normal(size=(1000, 3))
-    d[:, 2] = np.abs(d[:, 2])
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)),
-                                reciprocal=False)
-    iso = m.to_isotropic()
-    want = [basis.SphericalHarmonics(16).eval(d), basis.HemiZernike(12).eval(d),
-            m.eval(d[:500], d[500:]), iso.eval(d[:500], d[500:])]
-    for i, w in enumerate(want):
+    want = {}
+    exec(_EVALS, want)  # noqa: S102 - the same evaluations, with this process's lanes
+    for i, w in enumerate(want["out"]):
         assert np.array_equal(got[f"arr_{i}"], w), i
