@@ -7,7 +7,8 @@ read like the scalar code it replaces: ``Vec`` values combine with ``+ - * /`` a
 into ``Mask`` values, which combine with ``& | ~`` and choose with :meth:`Lanes.where`.
 
 Every operation is the IEEE operation of the scalar expression, lane by lane, in the order
-written (no fused multiply-add, no reassociation): a kernel written this way gives the bits
+written (no reassociation, and no fused multiply-add but where :meth:`Lanes.fma` asks for
+one, as :func:`basis.jit.fma` does in scalar code): a kernel written this way gives the bits
 of the scalar code with the same expression. Masks are LLVM ``<W x i1>`` vectors: ``k``
 registers with AVX-512, full-width compare results with AVX2.
 
@@ -108,6 +109,10 @@ class Lanes:
     def floor(self, x: Vec) -> Vec:
         """Return ``floor(x)`` lane-wise (exact)."""
         return self.call("llvm.floor", x)
+
+    def fma(self, a, b, c) -> Vec:
+        """Return ``a * b + c`` rounded once, lane-wise (:func:`basis.jit.fma`)."""
+        return self.call("llvm.fma", self.const(a), self.const(b), self.const(c))
 
     def where(self, m: Mask, a, b) -> Vec:
         """Return ``a`` in the lanes where ``m`` holds, else ``b``."""

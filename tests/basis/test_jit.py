@@ -1,11 +1,12 @@
-"""basis.jit: the eight-lane vector intrinsics against numpy's scalar IEEE arithmetic, and
-run_parallel's split of a task range."""
+"""basis.jit: the eight-lane vector intrinsics against numpy's scalar IEEE arithmetic, fma
+against exact rational arithmetic, and run_parallel's split of a task range."""
 
 import numba
 import numpy as np
 
 from basis.jit import (
     LANES,
+    fma,
     lane_affine,
     lane_copy,
     lane_disk,
@@ -155,6 +156,43 @@ def _ranges(tasks, threads, grain=1):
     return calls
 
 
+# -- fma: one rounding, against exact rational arithmetic -----------------------------------
+
+@numba.njit(cache=False)
+def _fma_loop(a, b, c, out):
+    # a loop LLVM vectorises (the kernels' use), with a float32 operand widened exactly
+    for i in range(a.shape[0]):
+        out[i] = fma(a[i], b[i], c[i])
+    return fma(np.float32(0.5), a[0], 1)
+
+
+def test_fma_rounds_the_exact_product_sum_once(rng):
+    # Reference: a * b + c in exact rationals (fractions), rounded once by int / int true
+    # division, which CPython rounds correctly. The first rows are cases where rounding the
+    # product first gives another result: (1 + 2^-30)(1 - 2^-30) - 1 = -2^-60 exactly (0
+    # unfused), a product's low half that decides the sum's last bit, and cancellation of
+    # large terms; then random magnitudes over 60 binades, each sign, c cancelling a * b to
+    # about 8 digits.
+    from fractions import Fraction
+
+    e = 2.0**-30
+    a = [1 + e, 1 + 2.0**-52, 3.0, 1e300, 0.1]
+    b = [1 - e, 1 + 2.0**-52, 1 / 3, 1e8, 10.0]
+    c = [-1.0, -1.0, -1.0, -1e308, -1.0]
+    n = 2000
+    a = np.concatenate([a, rng.normal(size=n) * 2.0 ** rng.integers(-30, 30, n)])
+    b = np.concatenate([b, rng.normal(size=n) * 2.0 ** rng.integers(-30, 30, n)])
+    c = np.concatenate([c, -a[5:] * b[5:] * (1 + rng.normal(size=n) * 1e-8)])
+    out = np.empty_like(a)
+    assert _fma_loop(a, b, c, out) == 0.5 * a[0] + 1  # float32 and int operands: exact here
+    for x, y, z, got in zip(a, b, c, out, strict=True):
+        exact = Fraction(x) * Fraction(y) + Fraction(z)
+        want = exact.numerator / exact.denominator if exact else 0.0
+        assert got == want, (x, y, z, got, want)
+    assert out[0] == -(2.0**-60) and a[0] * b[0] + c[0] == 0.0  # unfused would differ
+    assert np.sum(out != a * b + c) > 100  # the random rows differ in the last bits often
+
+
 def test_run_parallel_covers_every_task_once():
     from basis.jit import run_parallel
 
@@ -204,11 +242,11 @@ def test_run_parallel_nested_call_runs_inline_and_errors_propagate():
 # -- what LLVM emits for a wide-vector CPU ------------------------------------------------------
 # Compiled (never run) in a child process whose numba targets the named CPU; prints the count
 # of packed-double instructions on zmm and on ymm registers for a kernel of lane operations
-# and for a loop kernel marked with wide_loops.
+# and for a loop kernel marked with wide_loops, then of its packed fused multiply-adds.
 _CROSS = r"""
 import re
 import numba
-from basis.jit import lane_recur, lane_transpose, wide_loops
+from basis.jit import fma, lane_recur, lane_transpose, wide_loops
 
 @numba.njit(cache=False)
 def lanes(dst, x, p1, p2, tile):
@@ -221,13 +259,14 @@ def loops(m, a, s):
     wide_loops()
     for j in range(m.shape[0]):
         for k in range(m.shape[1]):
-            m[j, k] = m[j, k] + a[j] * s[k]
+            m[j, k] = fma(a[j], s[k], m[j, k])
 
 f1, f2 = numba.float64[::1], numba.float64[:, ::1]
 for k, sig in ((lanes, (f1, f1, f1, f1, f1)), (loops, (f2, f1, f1))):
     k.compile(sig)
     asm = k.inspect_asm(sig)
     print(*(len(re.findall(r"\tv\w+pd\t[^\n]*%" + r, asm)) for r in ("zmm", "ymm")))
+print(*(len(re.findall(r"\tvfmadd\w+pd\t[^\n]*%" + r, asm)) for r in ("zmm", "ymm")))
 """
 
 
@@ -261,15 +300,19 @@ def test_lane_operations_use_zmm_registers_on_avx512(tmp_path):
     # stays whole (numba marks no "min-legal-vector-width"; split, it would be ymm pairs and
     # no zmm), and wide_loops lifts the loop vectoriser to 512 bits. Without it that loop
     # ran on ymm registers only (0 zmm, 15 ymm with LLVM 22).
-    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm) = _cross_compile("skylake-avx512", tmp_path)
+    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm), (fma_zmm, _) = _cross_compile(
+        "skylake-avx512", tmp_path)
     assert lane_zmm > 0 and lane_ymm < lane_zmm, (lane_zmm, lane_ymm)
     assert loop_zmm > 0, (loop_zmm, loop_ymm)
+    assert fma_zmm > 0  # basis.jit.fma: one instruction, vectorised
 
 
 def test_lane_operations_use_ymm_pairs_on_avx2(tmp_path):
-    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm) = _cross_compile("haswell", tmp_path)
+    (lane_zmm, lane_ymm), (loop_zmm, loop_ymm), (fma_zmm, fma_ymm) = _cross_compile(
+        "haswell", tmp_path)
     assert lane_zmm == 0 and lane_ymm > 0, (lane_zmm, lane_ymm)
     assert loop_zmm == 0 and loop_ymm > 0, (loop_zmm, loop_ymm)
+    assert fma_zmm == 0 and fma_ymm > 0, (fma_zmm, fma_ymm)
 
 
 # -- a CPU without AVX: four lanes, the same bits -----------------------------------------------
@@ -297,7 +340,9 @@ np.savez(sys.argv[1], lanes=LANES, *out)
 def test_lanes_follow_the_target_and_keep_the_bits(tmp_path):
     # compiled for a CPU with SSE only (two doubles per register: four lanes) and run here
     # (an SSE program runs on any x86-64 CPU): the harmonics, Zernike functions and a
-    # coefficient matrix give the bits of this process's kernels, whatever its lane count
+    # coefficient matrix give the bits of this process's kernels, whatever its lane count;
+    # the block evaluator's fused multiply-adds are the C library's fma there (no FMA
+    # instruction), FMA instructions here
     import os
     import platform
     import subprocess

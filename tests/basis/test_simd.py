@@ -15,6 +15,7 @@ from numba.core import config
 from numba.extending import intrinsic
 
 from basis import simd
+from basis.jit import fma
 from basis.simd import Lanes, host_lanes
 
 W = 4
@@ -25,7 +26,7 @@ def _expr(v, x, y):
     m = (x < y) | ((x >= 2.0) & ~(y > 0.5)) | x.ne(x)
     a = v.where(m, v.floor(x) * 2.0 - y / 3.0, v.min(x, y))
     b = v.where(x.eq(y) | (x <= -1.0), 1.0 - x, -y + 0.25)
-    return a + b, m
+    return v.fma(a + b, y, x), m  # (a + b) * y + x, rounded once
 
 
 @intrinsic
@@ -54,7 +55,7 @@ def _scalar_kernel(x, y, out):
         m = (a < b) or (a >= 2.0 and not (b > 0.5)) or (a != a)
         p = np.floor(a) * 2.0 - b / 3.0 if m else min(a, b)
         q = 1.0 - a if (a == b or a <= -1.0) else -b + 0.25
-        out[j] = p + q
+        out[j] = fma(p + q, b, a)
         bits |= int(m) << j
     return bits
 
