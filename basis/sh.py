@@ -52,6 +52,7 @@ class _Harmonics(Basis):
         self._degree, self._azimuthal = _sh_indices(self._order, self._parity)
         self._a, self._b, self._d = _legendre_tables(self._order)
         self._rows = _row_tables(self._order, self._a, self._b)
+        self._off = triangular_offsets(self._order)  # start of column m in a, b
         self._smin = _seed_floor(self._order, self._norm)
         # column of each function in the full basis, where the kernel computes it
         self._cols = self._degree * self._degree + self._degree + self._azimuthal
@@ -63,7 +64,8 @@ class _Harmonics(Basis):
 
     def _eval_flat(self, dirs: NDArray[np.float64], out: NDArray[np.float64]) -> None:
         _eval_harmonics(writable(dirs), self._order, _PARITY_CODE[self._parity], self._norm,
-                        self._a, self._b, self._d, self._rows, self._smin, self._cols, out)
+                        self._a, self._b, self._d, self._off, self._rows, self._smin,
+                        self._cols, out)
 
 
 class SphericalHarmonics(_Harmonics):
@@ -296,9 +298,10 @@ def _pos(l, m, parity):
 #: a multiple of LANES.
 _TASK = 32 * LANES
 #: Below this degree the full basis takes _sh_pairs (two directions at a time, rows written
-#: straight to the output), from it _sh_lanes (measured on two cores: pairs faster at
-#: lmax = 8, lanes faster at 12 and above).
-_PAIR_LMAX = 12
+#: straight to the output), from it _sh_lanes (measured on one core of an AMD EPYC, AVX2,
+#: into a reused output: pairs 1.19x / 1.06x as fast at lmax = 10 / 12, lanes 1.04x / 1.16x
+#: at 14 / 16).
+_PAIR_LMAX = 13
 
 
 def _row_tables(lmax: int, a: NDArray, b: NDArray) -> tuple[NDArray, NDArray]:
@@ -320,9 +323,8 @@ def _seed_floor(lmax: int, norm: float) -> float:
     return float((_TINY / p00) ** (1.0 / lmax)) * (1.0 + 1e-12)
 
 
-def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, rows, smin, cols, out):
+def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, off, rows, smin, cols, out):
     """Evaluate into ``out``; the lane kernel and its per-direction fallback give the same bits."""
-    off = triangular_offsets(lmax)
     blocks = (dirs.shape[0] + LANES - 1) // LANES
     # each strategy its own kernel, so a program compiles only the ones its degrees use
     if parity == 2 and lmax < _PAIR_LMAX:
@@ -499,17 +501,34 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
     # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1, two
     # per iteration, for parity 2 and lmax < _PAIR_LMAX: the
     # recurrence in l is a chain of dependent multiplications, and two independent chains
-    # keep the FPU busy; each row (under 1.2 KB) is written straight to out.
+    # keep the FPU busy; each row (under 1.2 KB) is written straight to out. The polar
+    # coordinates of a block's directions come from lane_unit (its square roots and
+    # quotients lane-wise). The loops over l index with unsigned integers, which spares
+    # every load and store numba's wraparound of negative indices: that integer work, not
+    # the arithmetic, was the loop's bottleneck (1.25x faster at lmax = 8 without it).
     # Same operations in the same order as _sh_point, so the same bits; a direction with
     # 0 < sin(theta) < smin needs the carried exponent and takes _sh_point.
     lo = first * LANES
     hi = min(dirs.shape[0], stop * LANES)
     sqrt2 = np.sqrt(2.0)
     p00 = norm / np.sqrt(4.0 * np.pi)
+    zz = np.empty(LANES)
+    sn = np.empty(LANES)
+    cv = np.empty(LANES)
+    sv = np.empty(LANES)
+    two = np.uint64(2)
     for i in range(lo, hi, 2):
         j = min(i + 1, hi - 1)  # odd count: the last direction twice, the same values twice
-        z, s, c1, s1 = _unit(dirs, i)
-        zb, sb, c1b, s1b = _unit(dirs, j)
+        q = (i - lo) % LANES  # lanes q and q + j - i of the block
+        if q == 0:
+            if i + LANES <= hi:
+                lane_unit(dirs, i, zz, sn, cv, sv, smin)
+            else:
+                for r in range(hi - i):
+                    zz[r], sn[r], cv[r], sv[r] = _unit(dirs, i + r)
+        qb = q + j - i
+        z, s, c1, s1 = zz[q], sn[q], cv[q], sv[q]
+        zb, sb, c1b, s1b = zz[qb], sn[qb], cv[qb], sv[qb]
         if parity != 2 or (0.0 < s < smin) or (0.0 < sb < smin):
             # one parity class (HemiHarmonics), or a seed that needs the carried exponent
             _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
@@ -560,34 +579,37 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
             if m > 0:
                 row[k - 2 * m] = p1 * fs
                 rowb[k - 2 * m] = p1b * fsb
+            ku = np.uint64(k)
+            bu = np.uint64(base)
+            m2 = np.uint64(2 * m)
             if m == 0:
-                for l in range(2, lmax + 1):
-                    al = a[base + l]
-                    bl = b[base + l]
+                for l in range(two, np.uint64(lmax + 1)):
+                    al = a[bu + l]
+                    bl = b[bu + l]
                     p = al * z * p1 - bl * p2
                     pb = al * zb * p1b - bl * p2b
                     p2 = p1
                     p1 = p
                     p2b = p1b
                     p1b = pb
-                    k += 2 * l
-                    row[k] = p
-                    rowb[k] = pb
+                    ku += two * l
+                    row[ku] = p
+                    rowb[ku] = pb
             else:
-                for l in range(m + 2, lmax + 1):
-                    al = a[base + l]
-                    bl = b[base + l]
+                for l in range(np.uint64(m + 2), np.uint64(lmax + 1)):
+                    al = a[bu + l]
+                    bl = b[bu + l]
                     p = al * z * p1 - bl * p2
                     pb = al * zb * p1b - bl * p2b
                     p2 = p1
                     p1 = p
                     p2b = p1b
                     p1b = pb
-                    k += 2 * l
-                    row[k] = p * fc
-                    row[k - 2 * m] = p * fs
-                    rowb[k] = pb * fcb
-                    rowb[k - 2 * m] = pb * fsb
+                    ku += two * l
+                    row[ku] = p * fc
+                    row[ku - m2] = p * fs
+                    rowb[ku] = pb * fcb
+                    rowb[ku - m2] = pb * fsb
 
 
 @njit
