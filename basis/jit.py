@@ -23,9 +23,12 @@ from numba.extending import intrinsic
 
 from .simd import host_lanes
 
+#: lane count forced for tests (see LANES below); kernels are not cached then
+_FORCED_LANES = os.environ.get("SCATMODES_LANES", "")
+
 #: Every kernel: compiled once, cached on disk next to the module, and run without the GIL
 #: so that :func:`run_parallel` can run several at once.
-njit = partial(numba.njit, cache=True, fastmath=False, nogil=True)
+njit = partial(numba.njit, cache=not _FORCED_LANES, fastmath=False, nogil=True)
 
 #: A loop kernel that :func:`run_parallel` runs over a task range: :data:`njit` with numpy's
 #: error model, under which x / 0 gives inf or nan (integers: 0) instead of raising
@@ -33,7 +36,8 @@ njit = partial(numba.njit, cache=True, fastmath=False, nogil=True)
 #: the bodies of its parallel loops the same way, and gives them an unsigned loop index, which
 #: spares every ``a[p]`` numba's test for a negative index: loops that index many arrays
 #: iterate ``range(np.uint64(first), np.uint64(stop))`` (measured 30 % faster on one).
-loopjit = partial(numba.njit, cache=True, fastmath=False, nogil=True, error_model="numpy")
+loopjit = partial(numba.njit, cache=not _FORCED_LANES, fastmath=False, nogil=True,
+                  error_model="numpy")
 
 
 def run_parallel(kernel, tasks: int, *args, grain: int = 1) -> None:
@@ -200,16 +204,22 @@ def fma(typingctx, a, b, c):
 # multiply-add), so the values are the bits of the scalar code with the same expression.
 
 #: Lanes of the vector operations below, chosen for the compile target: two of its vector
-#: registers of doubles (:func:`basis.simd.host_lanes`), at most 8. That is one zmm
-#: register on a CPU with avx512f, two ymm halves on AVX2, two xmm without AVX. Four lanes
-#: (one ymm) on an AVX2 machine (AMD EPYC) were 4-14 % slower than eight for the harmonics
+#: registers of doubles (:func:`basis.simd.host_lanes`). That is two zmm registers on a CPU
+#: with avx512f (16 lanes), two ymm on AVX2 (8), two xmm without AVX (4). Four lanes (one
+#: ymm) on an AVX2 machine (AMD EPYC) were 4-14 % slower than eight for the harmonics
 #: (L = 16, 32), the Zernike functions (order 16) and a coefficient matrix (order 8), and
 #: level (within the spread) for Zernike order 8, in CPU time of one thread: each
-#: operation's two independent halves presumably hide the latency of the chains of
-#: dependent steps. Sixteen (two zmm) are not offered: the Zernike kernel supports eight at
-#: most. The operations work for any power of two (the tests of the bases and of the
-#: evaluator give the same bits at 4 lanes).
-LANES = min(8, 2 * host_lanes())
+#: operation's two independent halves hide the latency of the chains of dependent steps
+#: (the block evaluator's sums, for one, are chains of FMAs, four cycles each on Intel's
+#: AVX-512 cores: with one zmm per value its three channels kept the two FMA ports half
+#: idle, llvm-mca's model of Skylake-SP finds, with two they are busy). The lane count
+#: never changes a result: the lanes are independent directions, each computed by the
+#: same operations in the same order (tests compare 4, 8 and 16 lanes bit for bit).
+#: ``SCATMODES_LANES`` (2, 4, 8 or 16) overrides the choice, for those tests; kernels are
+#: then not cached, since numba's cache does not know the lane count.
+if _FORCED_LANES and _FORCED_LANES not in ("2", "4", "8", "16"):
+    raise ValueError(f"SCATMODES_LANES must be 2, 4, 8 or 16, got {_FORCED_LANES!r}")
+LANES = int(_FORCED_LANES) if _FORCED_LANES else min(16, 2 * host_lanes())
 
 _V8 = ir.VectorType(ir.DoubleType(), LANES)
 

@@ -223,11 +223,14 @@ def _disk(dirs, i):
 #: tables filled once per part); a multiple of LANES.
 _TASK = 128 * LANES
 
-# _zernike_lanes keeps R of two rows (n and n - 2) and needs every tile of LANES consecutive
-# columns to span at most four rows, which holds up to eight lanes (rows 0..3 hold ten
-# columns); more lanes need a third buffer of R
-if LANES > 8:
-    raise RuntimeError(f"the Zernike lane kernel supports at most 8 lanes, got {LANES}")
+# _zernike_lanes keeps R in _RBUF buffers, row n in buffer (n // 2) % _RBUF, so that rows
+# n - 2 _RBUF + 1 .. n are all held once row n is known (rows n and n - 1 share a buffer,
+# at entries of opposite parity). A tile of LANES consecutive columns that row n completes
+# reaches back LANES - 1 columns: at most four rows for eight lanes (rows 0..3 hold ten
+# columns), six for sixteen (rows 0..5 hold 21)
+_RBUF = 2 if LANES <= 8 else 3
+if LANES > 16:
+    raise RuntimeError(f"the Zernike lane kernel supports at most 16 lanes, got {LANES}")
 
 
 @njit
@@ -283,21 +286,21 @@ def _zernike_point(dirs, i, order, coef, norm, row):
 def _zernike_lanes(first, stop, dirs, order, coef, start, norm, out):
     # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1 in
     # blocks of LANES that run the radial recurrences together, row n
-    # by row n (the output order), each step one <8 x double> operation (basis.jit).
+    # by row n (the output order), each step one <LANES x double> operation (basis.jit).
     # Scratch is lane-fastest (entry r of lane j at r * LANES + j):
     #   ang: the angular factor of (n, l) at entry order + l for every signed l: sin(|l| phi)
     #        below order, 1/sqrt(2) at order, cos(l phi) above;
     #   seed: rho^l at entry l;
-    #   rr: R_n^l at entry l of its first half when n // 2 is even, of its second when odd:
-    #       then R_{n-2}^l is in the other half and R_{n-4}^l in the one written, which the
-    #       step overwrites (halves chosen by offset: swapping arrays in a loop would cost
-    #       numba an atomic reference count each time).
-    # Columns leave eight at a time as soon as their R are known: lane_tile forms
-    # (norm R) * angle for eight consecutive columns and stores them transposed, eight values
-    # into each of eight output rows. Where column k finds its R, angle and norm (ix[k],
-    # iy[k], f[k]) is the same for every block. A tile spans at most four rows (n - 3..n),
-    # whose R are all still in rr (so does the last tile, shifted to end at the last
-    # column). A last partial block takes _zernike_point; the blocks give
+    #   rr: _RBUF buffers, R_n^l at entry l of buffer (n // 2) % _RBUF; R_{n-2} and R_{n-4}
+    #       in the buffers before it (cyclically). With two, R_{n-4}^l is in the one written,
+    #       which the step overwrites in place (buffers chosen by offset: swapping arrays in a
+    #       loop would cost numba an atomic reference count each time).
+    # Columns leave LANES at a time as soon as their R are known: lane_tile forms
+    # (norm R) * angle for LANES consecutive columns and stores them transposed, LANES values
+    # into each of LANES output rows. Where column k finds its R, angle and norm (ix[k],
+    # iy[k], f[k]) is the same for every block. A tile spans at most 2 _RBUF rows
+    # (n - 2 _RBUF + 1..n), whose R are all still in rr (so does the last tile, shifted to
+    # end at the last column). A last partial block takes _zernike_point; the blocks give
     # its bits (same operations in the same order). out must be C-contiguous: the tiles
     # address it by flat index.
     lo = first * LANES
@@ -322,14 +325,14 @@ def _zernike_lanes(first, stop, dirs, order, coef, start, norm, out):
         ang[e1 + j] = 1.0
         ang[e1 + LANES + j] = 0.0
         seed[j] = 1.0
-    rr = np.empty(2 * nl * LANES)
+    rr = np.empty(_RBUF * nl * LANES)
     ix = np.empty(size, dtype=np.int64)
     iy = np.empty(size, dtype=np.int64)
     f = np.empty(size)
     k = 0
     for n in range(nl):
         for l in range(-n, n + 1, 2):
-            ix[k] = ((n // 2) % 2) * nl * LANES + abs(l) * LANES
+            ix[k] = ((n // 2) % _RBUF) * nl * LANES + abs(l) * LANES
             iy[k] = z0 + l * LANES
             f[k] = norm[n]
             k += 1
@@ -351,8 +354,10 @@ def _zernike_lanes(first, stop, dirs, order, coef, start, norm, out):
                 lane_turn(ang, z0 + r, z0 + r - LANES, z0 - r, z0 - r + LANES, c1, s1)
         done = 0  # columns of the block already in out
         for n in range(nl):
-            cur = ((n // 2) % 2) * nl * LANES  # offsets of R_n and R_{n-2} in rr
-            prv = nl * LANES - cur
+            # offsets of R_n, R_{n-2} and R_{n-4} in rr
+            cur = ((n // 2) % _RBUF) * nl * LANES
+            prv = ((n // 2 + _RBUF - 1) % _RBUF) * nl * LANES
+            old = ((n // 2 + _RBUF - 2) % _RBUF) * nl * LANES
             r = n * LANES
             lane_mul(rr, cur + r, seed, r, ones, 0)  # k = 0: R_n^n = rho^n
             if n >= 2:  # k = 1, closed form
@@ -363,7 +368,7 @@ def _zernike_lanes(first, stop, dirs, order, coef, start, norm, out):
                 t = start[l] + k - 1
                 r = l * LANES
                 lane_jacobi(rr, cur + r, coef[t, 0], xx, 0, coef[t, 1], rr, prv + r,
-                            coef[t, 2], rr, cur + r)
+                            coef[t, 2], rr, old + r)
             while done + LANES <= (n + 1) * (n + 2) // 2:  # row n ends there
                 lane_tile(flat, i0 * size + done, size, rr, ix, ang, iy, f, done)
                 done += LANES

@@ -3,6 +3,7 @@ against exact rational arithmetic, and run_parallel's split of a task range."""
 
 import numba
 import numpy as np
+import pytest
 
 from basis.jit import (
     LANES,
@@ -218,8 +219,6 @@ def test_run_parallel_grain_and_one_thread_run_in_the_caller():
 
 
 def test_run_parallel_nested_call_runs_inline_and_errors_propagate():
-    import pytest
-
     from basis.jit import run_parallel
 
     inner = []
@@ -281,8 +280,6 @@ def _cross_compile(cpu: str, tmp_path) -> list[tuple[int, int]]:
     import subprocess
     import sys
 
-    import pytest
-
     if platform.machine().lower() not in ("x86_64", "amd64"):
         pytest.skip("numba compiles for the host's architecture: x86-64 needs an x86-64 host")
     env = dict(os.environ, NUMBA_CPU_NAME=cpu, NUMBA_CPU_FEATURES=_FEATURES[cpu],
@@ -315,53 +312,73 @@ def test_lane_operations_use_ymm_pairs_on_avx2(tmp_path):
     assert fma_zmm == 0 and fma_ymm > 0, (fma_zmm, fma_ymm)
 
 
-# -- a CPU without AVX: four lanes, the same bits -----------------------------------------------
-# the evaluations compared: run in the SSE-only child and in this process alike
+# -- other lane counts: the same bits --------------------------------------------------------
+# the evaluations compared: run in a child with another lane count and in this process alike.
+# Zernike orders 5 and 8 (the smallest for sixteen lanes: a first tile spanning rows 0..5,
+# held only with three buffers of R) and 21; harmonics below and above the pair kernel's
+# degree, the hemispherical harmonics (one parity picked from a block)
 _EVALS = r"""
 import numpy as np
 import basis
 rng = np.random.default_rng(7)
-d = rng.normal(size=(1000, 3))
+d = rng.normal(size=(1003, 3))
 d[:, 2] = np.abs(d[:, 2])
 d /= np.linalg.norm(d, axis=1, keepdims=True)
 m = basis.CoefficientMatrix(basis.HemiZernike(8), rng.normal(size=(3, 45, 45)),
                             reciprocal=False)
 iso = m.to_isotropic()  # the block evaluator (evaluate.py)
-out = [basis.SphericalHarmonics(16).eval(d), basis.HemiZernike(12).eval(d),
-       m.eval(d[:500], d[500:]), iso.eval(d[:500], d[500:])]
+out = [basis.SphericalHarmonics(8).eval(d), basis.SphericalHarmonics(16).eval(d),
+       basis.HemiHarmonics(12).eval(d), basis.HemiZernike(5).eval(d),
+       basis.HemiZernike(8).eval(d), basis.HemiZernike(21).eval(d),
+       m.eval(d[:500], d[500:1000]), iso.eval(d[:500], d[500:1000])]
 """
-_SSE = _EVALS + r"""
+_CHILD = _EVALS + r"""
 import sys
 from basis.jit import LANES
 np.savez(sys.argv[1], lanes=LANES, *out)
 """
 
+#: SSE only (two doubles per register: four lanes; an SSE program runs on any x86-64 CPU,
+#: and the block evaluator's fused multiply-adds are the C library's fma there, with no FMA
+#: instruction), and sixteen lanes forced (what an AVX-512 CPU takes, two zmm registers per
+#: value; here each value is four ymm)
+_BUILDS = {"sse": ({"NUMBA_CPU_NAME": "x86-64",
+                    "NUMBA_CPU_FEATURES": "+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+cx16"}, 4),
+           "sixteen": ({"SCATMODES_LANES": "16"}, 16)}
 
-def test_lanes_follow_the_target_and_keep_the_bits(tmp_path):
-    # compiled for a CPU with SSE only (two doubles per register: four lanes) and run here
-    # (an SSE program runs on any x86-64 CPU): the harmonics, Zernike functions and a
-    # coefficient matrix give the bits of this process's kernels, whatever its lane count;
-    # the block evaluator's fused multiply-adds are the C library's fma there (no FMA
-    # instruction), FMA instructions here
+
+@pytest.mark.parametrize("build", list(_BUILDS))
+def test_lane_count_keeps_the_bits(build, tmp_path):
+    # the harmonics, Zernike functions and a coefficient matrix (dense and block
+    # evaluators) give the bits of this process's kernels, whatever either lane count
     import os
     import platform
     import subprocess
     import sys
 
-    import pytest
-
     if platform.machine().lower() not in ("x86_64", "amd64"):
-        pytest.skip("the SSE-only build runs on x86-64 only")
-    env = dict(os.environ, NUMBA_CPU_NAME="x86-64",
-               NUMBA_CPU_FEATURES="+sse2,+sse3,+ssse3,+sse4.1,+sse4.2,+popcnt,+cx16",
-               NUMBA_CACHE_DIR=str(tmp_path / "cache"))
-    path = tmp_path / "sse.npz"
-    r = subprocess.run([sys.executable, "-c", _SSE, str(path)], env=env, capture_output=True,
+        pytest.skip("the child builds run on x86-64 only")
+    extra, lanes = _BUILDS[build]
+    env = {k: v for k, v in os.environ.items() if k != "SCATMODES_LANES"}
+    env.update(extra, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    path = tmp_path / "child.npz"
+    r = subprocess.run([sys.executable, "-c", _CHILD, str(path)], env=env, capture_output=True,
                        text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     got = np.load(path)
-    assert int(got["lanes"]) == 4
+    assert int(got["lanes"]) == lanes
     want = {}
     exec(_EVALS, want)  # noqa: S102 - the same evaluations, with this process's lanes
     for i, w in enumerate(want["out"]):
         assert np.array_equal(got[f"arr_{i}"], w), i
+
+
+def test_forced_lane_count_is_checked():
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, SCATMODES_LANES="12")
+    r = subprocess.run([sys.executable, "-c", "import basis.jit"], env=env, capture_output=True,
+                       text=True, timeout=120)
+    assert r.returncode != 0 and "SCATMODES_LANES must be 2, 4, 8 or 16" in r.stderr
