@@ -335,10 +335,10 @@ def _chebyshev_blocks(b: Basis, blocks: tuple[NDArray, ...], *, general: bool = 
             np.ascontiguousarray(coefa), tria)
 
 
-# -- the fused kernel: eight pairs per step ---------------------------------------------------
+# -- the fused kernel: LANES pairs per step ---------------------------------------------------
 # numba's loop vectoriser gives up on the lane loops of this kernel (many scratch arrays it
 # cannot prove disjoint), so the per-pair geometry and the block sums are emitted here as
-# explicit <8 x double> operations (the powers of a_i conj(a_o) inside the block sums, in
+# explicit <LANES x double> operations (the powers of a_i conj(a_o) inside the block sums, in
 # registers), and the Chebyshev values and their products use the lane operations of
 # basis.jit.
 
@@ -446,8 +446,8 @@ def _geometry_codegen(context, builder, signature, args):
 @intrinsic
 def _lane_geometry(typingctx, wi, wo, p, form, fcos, lift, s_lift, atol, tt, to1, wr, wim,
                    scale):
-    # Pairs p..p+7 of wi, wo (n, 3): renormalised, lifted to cos(theta) >= lift, then the
-    # Chebyshev variables x_i, x_o (to tt[8:16] and tt[to1:to1+8]), Re and Im of
+    # Pairs p..p+L-1 of wi, wo (n, 3), L = LANES: renormalised, lifted to cos(theta) >= lift,
+    # then the Chebyshev variables x_i, x_o (to tt[L:2L] and tt[to1:to1+L]), Re and Im of
     # a_i conj(a_o) (wr, wim) and the factor of q (scale) of the form (module docstring);
     # all 0 where a direction is below the horizon. True when some |w|^2 is further than
     # atol from 1 or NaN. The operations of the scalar code this replaced, lane-wise.
@@ -458,8 +458,8 @@ def _lane_geometry(typingctx, wi, wo, p, form, fcos, lift, s_lift, atol, tt, to1
 @intrinsic
 def _lane_blocks(typingctx, res, coef, tri, coefa, tria, sp, sa, wr, wim, ca, cb, cc):
     # For channels ca, cb, cc of coef (nb, nc, K) and coefa (nb, nc, K'), both C-contiguous:
-    # res[8 g:8 g+8] = sum_m Re(w^m) (sum_t coef[m, c_g, t] sp[8t:8t+8]
-    #                                   + sum_t coefa[m, c_g, t] sa[8t:8t+8]),
+    # res[L g:L g+L] = sum_m Re(w^m) (sum_t coef[m, c_g, t] sp[L t:L t+L]
+    #                                   + sum_t coefa[m, c_g, t] sa[L t:L t+L]), L = LANES,
     # t below tri[m] and tria[m], w = wr + i wim lane-wise. Three channels at once share each
     # load of sp, sa; the powers of w stay in registers (a chain through memory would wait
     # on each store). The sums' multiply-adds are fused (basis.jit.fma): one rounding each,
@@ -485,7 +485,7 @@ def _lane_blocks(typingctx, res, coef, tri, coefa, tria, sp, sa, wr, wim, ca, cb
             return arr.data, cgutils.unpack_tuple(builder, arr.shape, 3)
 
         (cdata, (nb, nc, kk)), (adata, (_, _, ka)) = dims(t[1], cf), dims(t[3], cfa)
-        eight = ir.Constant(intp, LANES)
+        lanes = ir.Constant(intp, LANES)
         with cgutils.for_range(builder, nb) as loop:
             m = loop.index
             acc = [cgutils.alloca_once_value(builder, zero) for _ in chan]
@@ -496,7 +496,7 @@ def _lane_blocks(typingctx, res, coef, tri, coefa, tria, sp, sa, wr, wim, ca, cb
                 rows = [builder.mul(builder.add(builder.mul(m, nc), c), k) for c in chan]
                 with cgutils.for_range(builder, count) as inner:
                     q = inner.index
-                    v = _load(context, builder, sta, isa, builder.mul(q, eight))
+                    v = _load(context, builder, sta, isa, builder.mul(q, lanes))
                     for a, row in zip(acc, rows, strict=True):
                         c = builder.load(builder.gep(data, [builder.add(row, q)]))
                         builder.store(_fcall(builder, "llvm.fma", _splat(builder, c), v,

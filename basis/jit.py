@@ -129,8 +129,8 @@ def writable(a: np.ndarray) -> np.ndarray:
 # -- vector width -------------------------------------------------------------------------------
 # What LLVM emits for the host decides the width: numba compiles for the host CPU and its
 # features (or NUMBA_CPU_NAME / NUMBA_CPU_FEATURES), and caches a kernel per CPU and features.
-# The <8 x double> operations below are one zmm register on a CPU with avx512f and two ymm
-# halves on AVX2. (LLVM splits 512-bit vectors into 256-bit halves only in a function whose
+# The <LANES x double> operations below are two zmm registers on a CPU with avx512f and two
+# ymm on AVX2. (LLVM splits 512-bit vectors into 256-bit halves only in a function whose
 # "min-legal-vector-width" attribute is below 512, as clang marks functions without 512-bit
 # intrinsics; numba sets no such attribute, and tests/basis/test_jit.py checks for zmm in
 # the lane kernels compiled for Skylake-SP.) LLVM's loop vectoriser is another matter: on
@@ -195,11 +195,12 @@ def fma(typingctx, a, b, c):
     return f64(a, b, c), codegen
 
 
-# -- eight-lane vector operations ---------------------------------------------------------------
+# -- lane vector operations ---------------------------------------------------------------------
 # numba runs LLVM's loop vectoriser but not its SLP vectoriser, and the loop vectoriser gives
 # up on short loops over scratch arrays it cannot prove disjoint; these intrinsics emit the
-# <8 x double> operations directly. Each works on flat float64 indices into C-contiguous
-# arrays (any number of dimensions), with no bounds checks: the callers own the index ranges.
+# <LANES x double> operations directly (L below stands for LANES). Each works on flat
+# float64 indices into C-contiguous arrays (any number of dimensions), with no bounds checks:
+# the callers own the index ranges.
 # Every product and difference is a separate IEEE operation in the order written (no fused
 # multiply-add), so the values are the bits of the scalar code with the same expression.
 
@@ -249,7 +250,7 @@ def _shuffle(builder, u, v, mask):
 
 @intrinsic
 def lane_recur(typingctx, dst, di, x, xi, p1, i1, p2, i2, a, b):
-    """dst[di:di+8] = (a * x[xi:xi+8]) * p1[i1:i1+8] - b * p2[i2:i2+8]."""
+    """dst[di:di+L] = (a * x[xi:xi+L]) * p1[i1:i1+L] - b * p2[i2:i2+L]."""
     sig = types.void(dst, di, x, xi, p1, i1, p2, i2, a, b)
 
     def codegen(context, builder, signature, args):
@@ -269,7 +270,7 @@ def lane_recur(typingctx, dst, di, x, xi, p1, i1, p2, i2, a, b):
 
 @intrinsic
 def lane_scaled(typingctx, dst, di, a, x, xi, y, yi):
-    """dst[di:di+8] = (a * x[xi:xi+8]) * y[yi:yi+8]."""
+    """dst[di:di+L] = (a * x[xi:xi+L]) * y[yi:yi+L]."""
     sig = types.void(dst, di, a, x, xi, y, yi)
 
     def codegen(context, builder, signature, args):
@@ -286,7 +287,7 @@ def lane_scaled(typingctx, dst, di, a, x, xi, y, yi):
 
 @intrinsic
 def lane_mul(typingctx, dst, di, x, xi, y, yi):
-    """dst[di:di+8] = x[xi:xi+8] * y[yi:yi+8]."""
+    """dst[di:di+L] = x[xi:xi+L] * y[yi:yi+L]."""
     sig = types.void(dst, di, x, xi, y, yi)
 
     def codegen(context, builder, signature, args):
@@ -324,7 +325,7 @@ def _transpose_store(context, builder, aty, d, idi, st, rows):
 
 @intrinsic
 def lane_copy(typingctx, dst, di, src, si):
-    """dst[di:di+8] = src[si:si+8]."""
+    """dst[di:di+L] = src[si:si+L]."""
     sig = types.void(dst, di, src, si)
 
     def codegen(context, builder, signature, args):
@@ -338,9 +339,9 @@ def lane_copy(typingctx, dst, di, src, si):
 
 @intrinsic
 def lane_transpose(typingctx, dst, di, stride, src, si):
-    """dst[di + j * stride + r] = src[si + 8 r + j] for r, j < 8: an 8 x 8 block transposed.
+    """dst[di + j * stride + r] = src[si + L r + j] for r, j < L: an L x L block transposed.
 
-    Moves eight values of each of eight lanes (stored lane-fastest) to eight output rows
+    Moves L values of each of L lanes (stored lane-fastest) to L output rows
     ``stride`` apart, through registers.
     """
     sig = types.void(dst, di, stride, src, si)
@@ -388,7 +389,7 @@ def lane_unit(typingctx, dirs, i0, zz, sn, c1, s1, smin):
     """Renormalise directions i0..i0+7 of ``dirs`` (n, 3) and store their polar coordinates.
 
     Stores, lane by lane, z, sin(theta) and the unit azimuth (cos phi, sin phi) (1, 0 at the
-    poles) into the first eight entries of zz, sn, c1, s1: the operations of the scalar
+    poles) into the first L entries of zz, sn, c1, s1: the operations of the scalar
     routine, lane-wise (each square root and quotient correctly rounded, so the same bits).
     Returns True when some lane has 0 < sin(theta) < smin.
     """
@@ -416,10 +417,10 @@ def lane_unit(typingctx, dirs, i0, zz, sn, c1, s1, smin):
 
 @intrinsic
 def lane_rotate(typingctx, cc, ss, seed, r, c1, s1, dm, sn):
-    """One step of the azimuthal and sectoral recurrences, lane-wise, from row r - 8 to row r.
+    """One step of the azimuthal and sectoral recurrences, lane-wise, from row r - L to row r.
 
-    cc[r:r+8] = cc' c1 - ss' s1, ss[r:r+8] = ss' c1 + cc' s1, seed[r:r+8] = seed' (dm sn),
-    where ' marks the entries r - 8 .. r - 1 and c1, s1, sn their first eight entries.
+    cc[r:r+L] = cc' c1 - ss' s1, ss[r:r+L] = ss' c1 + cc' s1, seed[r:r+L] = seed' (dm sn),
+    where ' marks the entries r - L .. r - 1 and c1, s1, sn their first L entries.
     """
     sig = types.void(cc, ss, seed, r, c1, s1, dm, sn)
 
@@ -447,7 +448,7 @@ def lane_rotate(typingctx, cc, ss, seed, r, c1, s1, dm, sn):
 
 @intrinsic
 def lane_affine(typingctx, dst, di, a, x, xi, b, y, yi):
-    """dst[di:di+8] = (a * x[xi:xi+8] - b) * y[yi:yi+8]."""
+    """dst[di:di+L] = (a * x[xi:xi+L] - b) * y[yi:yi+L]."""
     sig = types.void(dst, di, a, x, xi, b, y, yi)
 
     def codegen(context, builder, signature, args):
@@ -466,7 +467,7 @@ def lane_affine(typingctx, dst, di, a, x, xi, b, y, yi):
 
 @intrinsic
 def lane_jacobi(typingctx, dst, di, a, x, xi, b, p1, i1, c, p2, i2):
-    """dst[di:di+8] = (a * x[xi:xi+8] - b) * p1[i1:i1+8] - c * p2[i2:i2+8].
+    """dst[di:di+L] = (a * x[xi:xi+L] - b) * p1[i1:i1+L] - c * p2[i2:i2+L].
 
     The three-term recurrence of the Jacobi polynomials in the form the Zernike radial
     functions use; ``dst`` may be ``p2`` (each lane is read before it is written).
@@ -496,7 +497,7 @@ def lane_disk(typingctx, dirs, i0, rho2, rho, c1, s1):
 
     After renormalising each direction (as :func:`lane_unit`), stores lane by lane
     rho^2 = (x^2 + y^2) / (1 + z) (1 - z where z <= -1/2), rho = sqrt(rho^2) and the unit
-    azimuth (cos phi, sin phi) (1, 0 at the poles) into the first eight entries of rho2, rho,
+    azimuth (cos phi, sin phi) (1, 0 at the poles) into the first L entries of rho2, rho,
     c1, s1: the operations of the scalar routine, lane-wise, so the same bits.
     """
     sig = types.void(dirs, i0, rho2, rho, c1, s1)
@@ -530,10 +531,10 @@ def _elem(context, builder, aty, a, i):
 
 @intrinsic
 def lane_tile(typingctx, dst, di, stride, x, ix, y, iy, f, k):
-    """Eight products (f[q] * x[ix[q]:ix[q]+8]) * y[iy[q]:iy[q]+8], q = k..k+7, transposed.
+    """L products (f[q] * x[ix[q]:ix[q]+L]) * y[iy[q]:iy[q]+L], q = k..k+L-1, transposed.
 
-    Lane j of product k + r goes to dst[di + j * stride + r]: eight output rows ``stride``
-    apart get eight values each, as :func:`lane_transpose` stores them, with no trip through
+    Lane j of product k + r goes to dst[di + j * stride + r]: L output rows ``stride``
+    apart get L values each, as :func:`lane_transpose` stores them, with no trip through
     memory between the products and the transpose. ix, iy: int64 arrays; f: float64.
     """
     sig = types.void(dst, di, stride, x, ix, y, iy, f, k)
@@ -560,8 +561,8 @@ def lane_tile(typingctx, dst, di, stride, x, ix, y, iy, f, k):
 def lane_turn(typingctx, a, c, cp, s, sp, c1, s1):
     """One step of the azimuthal recurrence, lane-wise, within one array.
 
-    a[c:c+8] = a[cp:cp+8] c1 - a[sp:sp+8] s1 and a[s:s+8] = a[sp:sp+8] c1 + a[cp:cp+8] s1,
-    with c1, s1 their first eight entries: (cos, sin) of the next multiple of the azimuth,
+    a[c:c+L] = a[cp:cp+L] c1 - a[sp:sp+L] s1 and a[s:s+L] = a[sp:sp+L] c1 + a[cp:cp+L] s1,
+    with c1, s1 their first L entries: (cos, sin) of the next multiple of the azimuth,
     the operations of :func:`lane_rotate`.
     """
     sig = types.void(a, c, cp, s, sp, c1, s1)
@@ -585,7 +586,7 @@ def lane_turn(typingctx, a, c, cp, s, sp, c1, s1):
 
 @intrinsic
 def lane_muladd(typingctx, dst, di, x, xi, y, yi, u, ui, v, vi, sign):
-    """dst[di:di+8] = x[xi:xi+8] * y[yi:yi+8] + sign * (u[ui:ui+8] * v[vi:vi+8]).
+    """dst[di:di+L] = x[xi:xi+L] * y[yi:yi+L] + sign * (u[ui:ui+L] * v[vi:vi+L]).
 
     ``sign`` is 1.0 or -1.0: the second product is added or subtracted (negation is exact,
     so these are the bits of x y + u v and x y - u v).

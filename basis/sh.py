@@ -405,12 +405,12 @@ def _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, row):
 def _sh_lanes(first, stop, dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin, cols, out):
     # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1, the
     # LANES of a block running the recurrence together, row l by row l, each step one
-    # <8 x double> operation (basis.jit): ra, rb are a, b by row
+    # <LANES x double> operation (basis.jit): ra, rb are a, b by row
     # (_row_tables). Scratch is flat and lane-fastest (entry r of lane j at r * LANES + j);
     # buf holds the full basis in flat order for each lane. For the full basis every row's
-    # finished columns go out in 8 x 8 transposed tiles while they are still in L1, so the
-    # buffer is read once, from cache, and the output rows are written eight values at a
-    # time; one parity class (HemiHarmonics) is picked by cols after the block.
+    # finished columns go out in LANES x LANES transposed tiles while they are still in L1,
+    # so the buffer is read once, from cache, and the output rows are written LANES values
+    # at a time; one parity class (HemiHarmonics) is picked by cols after the block.
     # A block with a direction needing the carried exponent (0 < sin(theta) < smin), and a
     # last partial block, take _sh_point; the others give its bits (same operations in the
     # same order; an m = 0 value is stored as p * 1.0, as _sh_point stores it). out must be

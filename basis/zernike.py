@@ -30,7 +30,7 @@ from .validation import nonneg_int
 
 _INV_SQRT2 = float(1.0 / np.sqrt(2.0))
 #: Below this order the recurrences run two directions at a time (_zernike_pairs), from it
-#: eight (_zernike_lanes). Measured on one core into fresh output arrays: the pairs 1.05x as
+#: LANES (_zernike_lanes). Measured on one core into fresh output arrays: the pairs 1.05x as
 #: fast as the lanes at order 6, the lanes 1.1x at order 8 and 1.4-1.9x from 12 to 32.
 _PAIR_ORDER = 8
 
@@ -385,7 +385,7 @@ def _zernike_lanes(first, stop, dirs, order, coef, start, norm, out):
 @njit
 def _zernike_pairs(first, stop, dirs, order, coef, start, norm, out):
     # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1 for
-    # low orders, where a block of eight has too little work to
+    # low orders, where a block of LANES has too little work to
     # hide the latency of its lane operations: the geometry, cos(l phi), sin(l phi) and
     # rho^l run lane-wise (lane_disk, lane_rotate), then the radial recurrences of two
     # directions at a time in scalar code, l by l, each value written straight to its row
