@@ -414,11 +414,13 @@ def _geometry_codegen(context, builder, signature, args):
     is0 = builder.icmp_signed("==", form, ir.Constant(ir.IntType(64), 0))
     is3 = builder.icmp_signed("==", form, ir.Constant(ir.IntType(64), 3))
     two = ir.Constant(_V8, [2.0] * LANES)
-    fis = [cgutils.alloca_once_value(builder, one) for _ in range(2)]
-    with builder.if_then(is0):  # zernike: a = (x + i y) / sqrt(1 + z)
-        builder.store(builder.fdiv(one, sqrt(builder.fadd(one, iz))), fis[0])
-        builder.store(builder.fdiv(one, sqrt(builder.fadd(one, oz))), fis[1])
-    fi, fo = (builder.load(v) for v in fis)
+    # zernike: a = (x + i y) / sqrt(1 + z), so a_i conj(a_o) carries the one factor
+    # g = 1 / sqrt((1 + z_i)(1 + z_o)); the other forms have g = 1
+    gs = cgutils.alloca_once_value(builder, one)
+    with builder.if_then(is0):
+        builder.store(builder.fdiv(one, sqrt(builder.fmul(builder.fadd(one, iz),
+                                                          builder.fadd(one, oz)))), gs)
+    g = builder.load(gs)
 
     def cheb(z):
         return builder.select(is0, builder.fsub(one, builder.fmul(two, z)),
@@ -426,10 +428,8 @@ def _geometry_codegen(context, builder, signature, args):
                                   builder.fmul(two, z), z), one)))
 
     xi, xo = cheb(iz), cheb(oz)
-    ar, ai = builder.fmul(ix, fi), builder.fmul(iy, fi)
-    br, bi = builder.fmul(ox, fo), builder.fmul(builder.fneg(oy), fo)
-    wr = builder.fsub(builder.fmul(ar, br), builder.fmul(ai, bi))
-    wim = builder.fadd(builder.fmul(ar, bi), builder.fmul(ai, br))
+    wr = builder.fmul(builder.fadd(builder.fmul(ix, ox), builder.fmul(iy, oy)), g)
+    wim = builder.fmul(builder.fsub(builder.fmul(iy, ox), builder.fmul(ix, oy)), g)
     is1 = builder.icmp_signed("==", form, ir.Constant(ir.IntType(64), 1))
     zz = builder.fmul(iz, oz)
     scale = builder.select(is1, builder.select(fcos, one, zz),
