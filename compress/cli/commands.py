@@ -271,12 +271,16 @@ def _demo(args: argparse.Namespace) -> int:
     out = _output_dir(args.out)
     orders = _orders(args.orders)
     study_orders = _orders(args.study_orders, "--study-orders")
-    # on a first run (the first cache miss) a second process compiles the Zernike kernel, the
-    # evaluator and the simulation's kernels while this one compiles the harmonics' and the
-    # quadrature's (about equal shares); later runs load them from numba's cache and start none
-    steps: dict[str, tuple[int, ...]] = {"zernike": (), "evaluator": ()}
+    # on a first run (the first cache miss) a second process compiles the Zernike kernel and
+    # the simulation's kernels while this one compiles the harmonics', the quadrature's and
+    # the evaluator's (about equal shares: with the evaluator in the second process this one
+    # waited 4.6 s for the simulation's kernels); later runs load them from numba's cache and
+    # start none
+    steps: dict[str, tuple[int, ...]] = {"zernike": ()}
     if args.rays > 0:
         steps["simulation"] = (args.resolution,)
+    else:
+        steps["evaluator"] = ()
     with demo.CompileAhead(steps if args.compile_ahead else {}, lazy=True) as ahead:
         return _demo_steps(args, demo, out, orders, study_orders, ahead)
 
