@@ -869,37 +869,32 @@ def _outer_kernel(first, stop, bu, c, sums, m):
         jb = j0 + min(1, nj - 1)
         jc = j0 + min(2, nj - 1)
         jd = j0 + min(3, nj - 1)
-        # four directions per pass; past the last one a pass repeats it with weight 0,
-        # whose terms add +-0 to every sum (exactly: sums start at +0 and never become -0),
-        # so one loop serves every count
-        for d in range(0, nd, 4):
-            d1 = min(d + 1, nd - 1)
-            d2 = min(d + 2, nd - 1)
-            d3 = min(d + 3, nd - 1)
+        d = 0
+        while d + 3 < nd:
             c0 = c[d]
-            c1 = c[d1] if d + 1 < nd else 0.0
-            c2 = c[d2] if d + 2 < nd else 0.0
-            c3 = c[d3] if d + 3 < nd else 0.0
+            c1 = c[d + 1]
+            c2 = c[d + 2]
+            c3 = c[d + 3]
             a00 = c0 * bu[d, ja]
             a01 = c0 * bu[d, jb]
             a02 = c0 * bu[d, jc]
             a03 = c0 * bu[d, jd]
-            a10 = c1 * bu[d1, ja]
-            a11 = c1 * bu[d1, jb]
-            a12 = c1 * bu[d1, jc]
-            a13 = c1 * bu[d1, jd]
-            a20 = c2 * bu[d2, ja]
-            a21 = c2 * bu[d2, jb]
-            a22 = c2 * bu[d2, jc]
-            a23 = c2 * bu[d2, jd]
-            a30 = c3 * bu[d3, ja]
-            a31 = c3 * bu[d3, jb]
-            a32 = c3 * bu[d3, jc]
-            a33 = c3 * bu[d3, jd]
+            a10 = c1 * bu[d + 1, ja]
+            a11 = c1 * bu[d + 1, jb]
+            a12 = c1 * bu[d + 1, jc]
+            a13 = c1 * bu[d + 1, jd]
+            a20 = c2 * bu[d + 2, ja]
+            a21 = c2 * bu[d + 2, jb]
+            a22 = c2 * bu[d + 2, jc]
+            a23 = c2 * bu[d + 2, jd]
+            a30 = c3 * bu[d + 3, ja]
+            a31 = c3 * bu[d + 3, jb]
+            a32 = c3 * bu[d + 3, jc]
+            a33 = c3 * bu[d + 3, jd]
             s0 = sums[d]
-            s1 = sums[d1]
-            s2 = sums[d2]
-            s3 = sums[d3]
+            s1 = sums[d + 1]
+            s2 = sums[d + 2]
+            s3 = sums[d + 3]
             for k in range(kk):
                 x0 = s0[k]
                 x1 = s1[k]
@@ -909,6 +904,21 @@ def _outer_kernel(first, stop, bu, c, sums, m):
                 r1[k] = fma(a31, x3, fma(a21, x2, fma(a11, x1, fma(a01, x0, r1[k]))))
                 r2[k] = fma(a32, x3, fma(a22, x2, fma(a12, x1, fma(a02, x0, r2[k]))))
                 r3[k] = fma(a33, x3, fma(a23, x2, fma(a13, x1, fma(a03, x0, r3[k]))))
+            d += 4
+        while d < nd:
+            cd = c[d]
+            a0 = cd * bu[d, ja]
+            a1 = cd * bu[d, jb]
+            a2 = cd * bu[d, jc]
+            a3 = cd * bu[d, jd]
+            s = sums[d]
+            for k in range(kk):
+                x = s[k]
+                r0[k] = fma(a0, x, r0[k])
+                r1[k] = fma(a1, x, r1[k])
+                r2[k] = fma(a2, x, r2[k])
+                r3[k] = fma(a3, x, r3[k])
+            d += 1
         for i in range(nj):
             for k in range(kk):
                 m[j0 + i, k] = r[i, k]
