@@ -450,7 +450,7 @@ def _lane_geometry(typingctx, wi, wo, p, form, fcos, lift, s_lift, atol, tt, to1
     # then the Chebyshev variables x_i, x_o (to tt[L:2L] and tt[to1:to1+L]), Re and Im of
     # a_i conj(a_o) (wr, wim) and the factor of q (scale) of the form (module docstring);
     # all 0 where a direction is below the horizon. True when some |w|^2 is further than
-    # atol from 1 or NaN. The operations of the scalar code this replaced, lane-wise.
+    # atol from 1 or NaN.
     sig = types.boolean(wi, wo, p, form, fcos, lift, s_lift, atol, tt, to1, wr, wim, scale)
     return sig, _geometry_codegen
 

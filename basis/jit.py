@@ -215,7 +215,8 @@ def fma(typingctx, a, b, c):
 #: AVX-512 cores: with one zmm per value its three channels kept the two FMA ports half
 #: idle, llvm-mca's model of Skylake-SP finds, with two they are busy). The lane count
 #: never changes a result: the lanes are independent directions, each computed by the
-#: same operations in the same order (tests compare 4, 8 and 16 lanes bit for bit).
+#: same operations in the same order (tests compare this machine's count with 4 and with
+#: 8 or 16, bit for bit).
 #: ``SCATMODES_LANES`` (2, 4, 8 or 16) overrides the choice, for those tests; kernels are
 #: then not cached, since numba's cache does not know the lane count.
 if _FORCED_LANES and _FORCED_LANES not in ("2", "4", "8", "16"):
@@ -365,7 +366,7 @@ def _fcall(builder, name, *vals):
 
 
 def _unit_lanes(context, builder, aty, dd, ii0):
-    """Load directions ii0 .. ii0 + 7 of an (n, 3) array as x, y, z lanes, divided by |w|."""
+    """Load directions ii0 .. ii0 + L - 1 of an (n, 3) array as x, y, z lanes, divided by |w|."""
     data = context.make_array(aty)(context, builder, dd).data
     ity = ii0.type
     base = builder.mul(ii0, ir.Constant(ity, 3))
@@ -386,7 +387,7 @@ def _unit_lanes(context, builder, aty, dd, ii0):
 
 @intrinsic
 def lane_unit(typingctx, dirs, i0, zz, sn, c1, s1, smin):
-    """Renormalise directions i0..i0+7 of ``dirs`` (n, 3) and store their polar coordinates.
+    """Renormalise directions i0..i0+L-1 of ``dirs`` (n, 3) and store their polar coordinates.
 
     Stores, lane by lane, z, sin(theta) and the unit azimuth (cos phi, sin phi) (1, 0 at the
     poles) into the first L entries of zz, sn, c1, s1: the operations of the scalar
@@ -493,7 +494,7 @@ def lane_jacobi(typingctx, dst, di, a, x, xi, b, p1, i1, c, p2, i2):
 
 @intrinsic
 def lane_disk(typingctx, dirs, i0, rho2, rho, c1, s1):
-    """Map directions i0..i0+7 of ``dirs`` (n, 3) to Lambert's azimuthal equal-area disk.
+    """Map directions i0..i0+L-1 of ``dirs`` (n, 3) to Lambert's azimuthal equal-area disk.
 
     After renormalising each direction (as :func:`lane_unit`), stores lane by lane
     rho^2 = (x^2 + y^2) / (1 + z) (1 - z where z <= -1/2), rho = sqrt(rho^2) and the unit

@@ -501,7 +501,7 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
     # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1, two
     # per iteration, for parity 2 and lmax < _PAIR_LMAX: the
     # recurrence in l is a chain of dependent multiplications, and two independent chains
-    # keep the FPU busy; each row (under 1.2 KB) is written straight to out. The polar
+    # keep the FPU busy; each row (at most 1.4 KB) is written straight to out. The polar
     # coordinates of a block's directions come from lane_unit (its square roots and
     # quotients lane-wise). The loops over l index with unsigned integers, which spares
     # every load and store numba's wraparound of negative indices: that integer work, not

@@ -224,10 +224,11 @@ def _disk(dirs, i):
 _TASK = 128 * LANES
 
 # _zernike_lanes keeps R in _RBUF buffers, row n in buffer (n // 2) % _RBUF, so that rows
-# n - 2 _RBUF + 1 .. n are all held once row n is known (rows n and n - 1 share a buffer,
-# at entries of opposite parity). A tile of LANES consecutive columns that row n completes
-# reaches back LANES - 1 columns: at most four rows for eight lanes (rows 0..3 hold ten
-# columns), six for sixteen (rows 0..5 hold 21)
+# n - 2 _RBUF + 1 .. n are all held once row n is known (rows 2j and 2j + 1 share buffer
+# j % _RBUF at entries of opposite parity, and a row overwrites only entries of its own
+# parity: those of the row 2 _RBUF before it). A tile of LANES consecutive columns that
+# row n completes reaches back LANES - 1 columns: at most four rows for eight lanes (rows
+# 0..3 hold ten columns), six for sixteen (rows 0..5 hold 21)
 _RBUF = 2 if LANES <= 8 else 3
 if LANES > 16:
     raise RuntimeError(f"the Zernike lane kernel supports at most 16 lanes, got {LANES}")

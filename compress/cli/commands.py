@@ -274,8 +274,8 @@ def _demo(args: argparse.Namespace) -> int:
     # on a first run (the first cache miss) a second process compiles the Zernike kernel and
     # the simulation's kernels while this one compiles the harmonics', the quadrature's and
     # the evaluator's (about equal shares: with the evaluator in the second process this one
-    # waited 4.6 s for the simulation's kernels); later runs load them from numba's cache and
-    # start none
+    # waited 4.6 s for the simulation's kernels; with no simulation the second process takes
+    # the evaluator); later runs load them from numba's cache and start none
     steps: dict[str, tuple[int, ...]] = {"zernike": ()}
     if args.rays > 0:
         steps["simulation"] = (args.resolution,)

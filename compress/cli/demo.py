@@ -5,11 +5,12 @@ scattering modes (Figure 1 of Koenderink, van Doorn & Stavridi 1996), two built-
 projected at a few orders (resolution against error), and a small Monte Carlo simulation of
 a Gaussian surface against Beckmann + Smith (Figure 6 of Westin, Arvo & Torrance 1992).
 
-On a first run numba compiles the kernels (about 11 s of one core, then cached on disk):
+On a first run numba compiles the kernels (about 25 s of one core, then cached on disk):
 :class:`CompileAhead` compiles the Zernike kernel and the simulation's kernels in a second
 process while this one compiles the harmonics', the quadrature's and the evaluator of
-coefficient matrices, so that the first run costs about half of the compilation more than a
-cached one. A cached run starts no second process.
+coefficient matrices (with no simulation, the second process takes the evaluator), so that
+the first run costs about half of the compilation more than a cached one. A cached run
+starts no second process.
 """
 
 from __future__ import annotations

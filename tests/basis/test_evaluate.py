@@ -157,7 +157,7 @@ def test_plain_arrays_are_checked_inside_the_kernel(rng):
 
 @pytest.mark.parametrize("channels", [None, 2, 4, 7])
 def test_partial_steps_and_channel_groups(channels, rng):
-    # the kernel takes pairs eight at a time (a last partial step runs on padded copies) and
+    # the kernel takes pairs LANES at a time (a last partial step runs on padded copies) and
     # channels three at a time (a last partial group repeats its last channel): every count
     # of pairs up to 17, channel counts that leave 1 and 2 over, grazing pairs lifted in some
     # lanes and not others. Reference and tolerance as in test_matches_direct_product.

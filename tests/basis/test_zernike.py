@@ -368,11 +368,14 @@ def test_batch_shape(unit_vectors):
 @pytest.mark.parametrize("order", [0, 2, 5, 7, 8, 12, 33])
 def test_blocks_give_the_bits_of_one_direction(order, unit_vectors):
     # Reference: each direction evaluated alone, which runs the scalar per-direction routine;
-    # blocks of eight directions (lane operations, transposed tile writes, below and from
-    # order 8) run the same operations in the same order, so equality is bitwise. 8 * 129 + 5
-    # directions: full blocks, two parallel tasks and a partial last block; the pole, the
-    # horizon and near-unit vectors among them.
-    d = unit_vectors(8 * 129 + 5, upper=True)
+    # blocks of LANES directions (lane operations, transposed tile writes, below and from
+    # order 8) run the same operations in the same order, so equality is bitwise.
+    # 2 _TASK + 3 LANES + 5 directions: full blocks, two parallel tasks (on two threads) and
+    # a partial last block; the pole, the horizon and near-unit vectors among them.
+    from basis.jit import LANES
+    from basis.zernike import _TASK
+
+    d = unit_vectors(2 * _TASK + 3 * LANES + 5, upper=True)
     d[:4] = [[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, -1.0, 0.0], [1e-300, 0.0, 1.0]]
     d[4:8] *= 1 + 1e-7
     zb = HemiZernike(order)
