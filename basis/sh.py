@@ -297,10 +297,11 @@ def _pos(l, m, parity):
 #: Fewest directions per part of run_parallel (scratch arrays are allocated once per part);
 #: a multiple of LANES.
 _TASK = 32 * LANES
-#: Below this degree the full basis takes _sh_pairs (two directions at a time, rows written
+#: Below this degree the bases take _sh_pairs (two directions at a time, rows written
 #: straight to the output), from it _sh_lanes (measured on one core of an AMD EPYC, AVX2,
 #: into a reused output: pairs 1.19x / 1.06x as fast at lmax = 10 / 12, lanes 1.04x / 1.16x
-#: at 14 / 16).
+#: at 14 / 16, for the full basis; for one parity class, which the lanes pick from the full
+#: basis, the pairs store only the class: 1.23x / 1.36x the lanes at 8 / 12).
 _PAIR_LMAX = 13
 
 
@@ -327,7 +328,7 @@ def _eval_harmonics(dirs, lmax, parity, norm, a, b, d, off, rows, smin, cols, ou
     """Evaluate into ``out``; the lane kernel and its per-direction fallback give the same bits."""
     blocks = (dirs.shape[0] + LANES - 1) // LANES
     # each strategy its own kernel, so a program compiles only the ones its degrees use
-    if parity == 2 and lmax < _PAIR_LMAX:
+    if lmax < _PAIR_LMAX:
         run_parallel(_sh_pairs, blocks, dirs, lmax, parity, norm, a, b, d, off, smin, out,
                      grain=_TASK // LANES)
     else:
@@ -499,9 +500,10 @@ def _sh_lanes(first, stop, dirs, lmax, parity, norm, a, b, d, off, ra, rb, smin,
 @njit
 def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
     # Blocks first .. stop - 1 of LANES directions (run_parallel): directions lo..hi-1, two
-    # per iteration, for parity 2 and lmax < _PAIR_LMAX: the
+    # per iteration, for lmax < _PAIR_LMAX: the
     # recurrence in l is a chain of dependent multiplications, and two independent chains
-    # keep the FPU busy; each row (at most 1.4 KB) is written straight to out. The polar
+    # keep the FPU busy; each row (at most 1.4 KB) is written straight to out, for one
+    # parity class (HemiHarmonics) only the functions of that class. The polar
     # coordinates of a block's directions come from lane_unit (its square roots and
     # quotients lane-wise). The loops over l index with unsigned integers, which spares
     # every load and store numba's wraparound of negative indices: that integer work, not
@@ -516,6 +518,7 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
     sn = np.empty(LANES)
     cv = np.empty(LANES)
     sv = np.empty(LANES)
+    one = np.uint64(1)
     two = np.uint64(2)
     for i in range(lo, hi, 2):
         j = min(i + 1, hi - 1)  # odd count: the last direction twice, the same values twice
@@ -529,8 +532,7 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
         qb = q + j - i
         z, s, c1, s1 = zz[q], sn[q], cv[q], sv[q]
         zb, sb, c1b, s1b = zz[qb], sn[qb], cv[qb], sv[qb]
-        if parity != 2 or (0.0 < s < smin) or (0.0 < sb < smin):
-            # one parity class (HemiHarmonics), or a seed that needs the carried exponent
+        if (0.0 < s < smin) or (0.0 < sb < smin):  # a seed needs the carried exponent
             _sh_point(dirs, i, lmax, parity, norm, a, b, d, off, out[i])
             _sh_point(dirs, j, lmax, parity, norm, a, b, d, off, out[j])
             continue
@@ -561,11 +563,15 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
                 fcb = cmb
                 fsb = smb
             k = m * m + 2 * m  # position of (l, m) = (m, m); (l, -m) is 2m before
-            row[k] = pmm * fc
-            rowb[k] = pmmb * fcb
-            if m > 0:
-                row[k - 2 * m] = pmm * fs
-                rowb[k - 2 * m] = pmmb * fsb
+            if parity == 2:
+                row[k] = pmm * fc
+                rowb[k] = pmmb * fcb
+                if m > 0:
+                    row[k - 2 * m] = pmm * fs
+                    rowb[k - 2 * m] = pmmb * fsb
+            else:
+                _store(row, m, m, pmm, fc, fs, parity)
+                _store(rowb, m, m, pmmb, fcb, fsb, parity)
             if m == lmax:
                 continue
             base = off[m] - m
@@ -574,15 +580,41 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
             p2b = pmmb
             p1b = a[base + m + 1] * zb * pmmb
             k += 2 * m + 2
-            row[k] = p1 * fc
-            rowb[k] = p1b * fcb
-            if m > 0:
-                row[k - 2 * m] = p1 * fs
-                rowb[k - 2 * m] = p1b * fsb
+            if parity == 2:
+                row[k] = p1 * fc
+                rowb[k] = p1b * fcb
+                if m > 0:
+                    row[k - 2 * m] = p1 * fs
+                    rowb[k - 2 * m] = p1b * fsb
+            else:
+                _store(row, m + 1, m, p1, fc, fs, parity)
+                _store(rowb, m + 1, m, p1b, fcb, fsb, parity)
             ku = np.uint64(k)
             bu = np.uint64(base)
             m2 = np.uint64(2 * m)
-            if m == 0:
+            if parity != 2:
+                # one class: every other degree, (l, m) at _pos(l, m, parity) (in unsigned
+                # arithmetic), (l, -m) m places before
+                um = np.uint64(m)
+                up = np.uint64(parity)
+                ev = one - up
+                for l in range(np.uint64(m + 2), np.uint64(lmax + 1)):
+                    al = a[bu + l]
+                    bl = b[bu + l]
+                    p = al * z * p1 - bl * p2
+                    pb = al * zb * p1b - bl * p2b
+                    p2 = p1
+                    p1 = p
+                    p2b = p1b
+                    p1b = pb
+                    if (l + um) % two == up:
+                        kp = (l * (l - one + two * ev)) // two + (um + l - one + ev) // two
+                        row[kp] = p * fc
+                        rowb[kp] = pb * fcb
+                        if m > 0:
+                            row[kp - um] = p * fs
+                            rowb[kp - um] = pb * fsb
+            elif m == 0:
                 for l in range(two, np.uint64(lmax + 1)):
                     al = a[bu + l]
                     bl = b[bu + l]
