@@ -572,9 +572,10 @@ def test_pole_and_horizon_directions(make):
 @pytest.mark.parametrize("lmax", [0, 3, 11, 12, 13, 25])
 def test_fast_kernels_give_the_reference_bits(make, lmax, unit_vectors):
     # The pair kernel (lmax < 13; for one parity class it stores only that class) and the
-    # lane kernel (LANES directions per block) promise the bits of _sh_point, the per-direction routine with the carried exponent: same
-    # operations in the same order. 37 directions: full blocks, a partial one, and a block
-    # with sin(theta) below the seed floor (it falls back to _sh_point as a whole).
+    # lane kernel (LANES directions per block) promise the bits of _sh_point, the
+    # per-direction routine with the carried exponent: same operations in the same order.
+    # 37 directions: full blocks, a partial one, and a block with sin(theta) below the seed
+    # floor (it falls back to _sh_point as a whole).
     from basis._base import triangular_offsets
     from basis.sh import _PARITY_CODE, _sh_point
 
