@@ -5,8 +5,8 @@ its table headers, so that a row copied elsewhere still says which machine it ca
 
 The vector width is the one numba's LLVM compiles for (its target CPU and features, which
 ``NUMBA_CPU_NAME`` and ``NUMBA_CPU_FEATURES`` override, else the host's): 8 doubles with
-avx512f, 4 with avx, 2 otherwise. The kernels' explicit vectors (``basis.jit.LANES``, 8
-doubles) are one register at 8 and two halves at 4; LLVM's loop vectoriser may choose less
+avx512f, 4 with avx, 2 otherwise. The kernels' explicit vectors (``basis.jit.LANES``) are
+two registers of that width (16, 8 or 4 doubles); LLVM's loop vectoriser may choose less
 than the register (256 bits on Intel's AVX-512 server cores, which LLVM tunes with
 ``prefer-256-bit``, except in kernels marked with ``basis.jit.wide_loops``).
 """
