@@ -518,7 +518,6 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
     sn = np.empty(LANES)
     cv = np.empty(LANES)
     sv = np.empty(LANES)
-    one = np.uint64(1)
     two = np.uint64(2)
     for i in range(lo, hi, 2):
         j = min(i + 1, hi - 1)  # odd count: the last direction twice, the same values twice
@@ -593,11 +592,10 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
             bu = np.uint64(base)
             m2 = np.uint64(2 * m)
             if parity != 2:
-                # one class: every other degree, (l, m) at _pos(l, m, parity) (in unsigned
-                # arithmetic), (l, -m) m places before
+                # one class: every other degree, (l, m) at _pos(l, m, parity), (l, -m) m
+                # places before (an unsigned index: no wraparound)
                 um = np.uint64(m)
                 up = np.uint64(parity)
-                ev = one - up
                 for l in range(np.uint64(m + 2), np.uint64(lmax + 1)):
                     al = a[bu + l]
                     bl = b[bu + l]
@@ -608,7 +606,7 @@ def _sh_pairs(first, stop, dirs, lmax, parity, norm, a, b, d, off, smin, out):
                     p2b = p1b
                     p1b = pb
                     if (l + um) % two == up:
-                        kp = (l * (l - one + two * ev)) // two + (um + l - one + ev) // two
+                        kp = np.uint64(_pos(np.int64(l), m, parity))
                         row[kp] = p * fc
                         rowb[kp] = pb * fcb
                         if m > 0:
