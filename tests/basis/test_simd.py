@@ -93,3 +93,41 @@ def test_host_lanes_of_this_machine_matches_its_features():
     flags = set(simd.llvm.get_host_cpu_features().flatten().split(","))
     assert host_lanes() == (8 if "+avx512f" in flags else 4 if "+avx" in flags else 2)
 
+
+
+def _gather_kernel():
+    # a fresh kernel each call: GATHER is read when it compiles
+    @intrinsic
+    def lanes_gather(typingctx, data, index, out):
+        def codegen(context, builder, signature, args):
+            v = Lanes(builder, W)
+            d, i, o = (context.make_array(t)(context, builder, a).data
+                       for t, a in zip(signature.args, args, strict=True))
+            v.store(o, v.gather(d, v.load(i)))
+            return context.get_dummy_value()
+
+        return types.void(data, index, out), codegen
+
+    @numba.njit(cache=False)
+    def kernel(data, index, out):
+        lanes_gather(data, index, out)
+
+    return kernel
+
+
+@pytest.mark.parametrize("gather", [False, True])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_gather_loads_each_lanes_entry(monkeypatch, gather, dtype):
+    # both ways of gathering (one gather instruction, the AVX-512 default, or a load per
+    # lane) against numpy's indexing; floats are widened exactly, repeated and far-apart
+    # indices included
+    monkeypatch.setattr(simd, "GATHER", gather)
+    data = (np.arange(5000, dtype=np.float64) * 1.1 - 7.3).astype(dtype)
+    kernel = _gather_kernel()
+    for index in ([0, 4999, 3, 3], [17, 2, 4096, 1]):
+        idx = np.array(index, dtype=np.float64)
+        out = np.empty(W)
+        kernel(data, idx, out)
+        assert np.array_equal(out, data[idx.astype(np.int64)].astype(np.float64))
+    ir = next(iter(kernel.inspect_llvm().values()))
+    assert ("llvm.masked.gather" in ir) == gather

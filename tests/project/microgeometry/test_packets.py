@@ -7,7 +7,8 @@ the packet walk runs the same operations in the same order, lane by lane, so any
 is a fault. Surfaces cover power-of-two and other grid sides (the modulo without a
 division), steep slopes (many bounces), flat cells (hits in the first step), lossy Fresnel
 mirrors and diffuse facets (roulette), and the bounce and step caps; the lane width is
-checked at 2, 4 and 8 in child processes.
+checked at 2, 4 and 8 in child processes, and the host's width with the other way of
+gathering (gather instructions, as with AVX-512, or a load per lane).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from basis import simd
 from project.microgeometry import Diffuse, GaussianSurface, Heightfield, Mirror
 from project.microgeometry import _packets as pk
 from project.microgeometry._paths import _alloc, incident_directions
@@ -95,8 +97,10 @@ def test_packets_are_independent_of_the_split():
 
 _CHILD = textwrap.dedent("""
     import numpy as np
+    import basis.simd
     import project.microgeometry._packets as pk
-    pk.LANES = {lanes}  # before anything compiles: the kernels read it at compile time
+    pk.LANES = {lanes}  # before anything compiles: the kernels read these at compile time
+    basis.simd.GATHER = {gather}
     from project.microgeometry import GaussianSurface
     from project.microgeometry._paths import _alloc, incident_directions
     from project.microgeometry.trace import _run
@@ -112,12 +116,15 @@ _CHILD = textwrap.dedent("""
 """)
 
 
-@pytest.mark.parametrize("lanes", sorted({2, 8} - {pk.LANES}))
-def test_other_lane_widths_give_the_same_bits(lanes, tmp_path):
-    # a width other than the host's, compiled into an empty cache in a child process
+@pytest.mark.parametrize("lanes, gather", [(n, simd.GATHER) for n in sorted({2, 8} - {pk.LANES})]
+                         + [(pk.LANES, not simd.GATHER)])
+def test_other_lane_widths_give_the_same_bits(lanes, gather, tmp_path):
+    # a width other than the host's, or the host's with the other way of gathering (one
+    # gather instruction, as with AVX-512, or a load per lane), compiled into an empty cache
+    # in a child process
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path), PYTHONPATH=str(ROOT))
-    r = subprocess.run([sys.executable, "-c", _CHILD.format(lanes=lanes)], env=env,
-                       capture_output=True, text=True, timeout=600)
+    r = subprocess.run([sys.executable, "-c", _CHILD.format(lanes=lanes, gather=gather)],
+                       env=env, capture_output=True, text=True, timeout=600)
     assert r.returncode == 0, r.stderr[-2000:]
     assert r.stdout.split() == ["ok", str(lanes)]
 
@@ -140,18 +147,21 @@ _CROSS = textwrap.dedent("""
     sig = (numba.float64[:, ::1], numba.float64[:, ::1], numba.float32[::1], numba.float64[::1])
     step.compile(sig)
     asm = step.inspect_asm(sig)
-    print(pk.LANES, *(len(re.findall(r"\\tv\\w+pd\\t[^\\n]*%" + r, asm)) for r in ("zmm", "ymm")))
+    print(pk.LANES, *(len(re.findall(r"\\tv\\w+pd\\t[^\\n]*%" + r, asm)) for r in ("zmm", "ymm")),
+          len(re.findall(r"\\tvgatherd", asm)))
 """)
 
 
-@pytest.mark.parametrize("cpu, features, lanes, reg", [
+@pytest.mark.parametrize("cpu, features, lanes, reg, gathers", [
     ("skylake-avx512", "+avx512f,+avx512dq,+avx512vl,+avx512bw,+avx2,+avx,+fma,+sse4.2", 8,
-     "zmm"),
-    ("haswell", "+avx2,+avx,+fma,+sse4.2", 4, "ymm"),
+     "zmm", 5),
+    ("haswell", "+avx2,+avx,+fma,+sse4.2", 4, "ymm", 0),
 ])
-def test_packet_step_at_the_width_of_the_target(tmp_path, cpu, features, lanes, reg):
+def test_packet_step_at_the_width_of_the_target(tmp_path, cpu, features, lanes, reg, gathers):
     # compiled (never run) in a child process whose numba targets the named CPU: the packet
-    # holds one register of doubles, and its arithmetic is on that register width
+    # holds one register of doubles, and its arithmetic is on that register width; with
+    # AVX-512 its five gathers (the pyramid's node, the cell's four corners) are gather
+    # instructions
     import platform
 
     if platform.machine().lower() not in ("x86_64", "amd64"):
@@ -163,7 +173,8 @@ def test_packet_step_at_the_width_of_the_target(tmp_path, cpu, features, lanes, 
     if r.returncode and "No available targets" in r.stderr:
         pytest.skip("this LLVM build has no x86 target")
     assert r.returncode == 0, r.stderr[-2000:]
-    got, zmm, ymm = (int(x) for x in r.stdout.split())
+    got, zmm, ymm, found = (int(x) for x in r.stdout.split())
     assert got == lanes
+    assert found == gathers
     wide, other = (zmm, ymm) if reg == "zmm" else (ymm, zmm)
     assert wide > 100 and other < wide // 10, (zmm, ymm)
