@@ -17,7 +17,6 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
-from numba.cpython.unsafe.numbers import trailing_zeros
 from numpy.typing import ArrayLike, NDArray
 
 from basis.jit import loopjit, njit, run_parallel
@@ -25,7 +24,7 @@ from basis.validation import as_directions
 
 from . import _packets as pk
 from ._checks import _positive_int, _seed
-from ._packets import walk_step
+from ._packets import walk_casts
 from ._paths import (
     _ESCAPED,
     _LOST,
@@ -220,75 +219,30 @@ def _trace_kernel(first, stop, order, dirs, per, seed, start, h, pyr, offs, top,
 # -- the packet tracer ------------------------------------------------------------------------
 # _trace_packets traces the paths of a block of rays in rounds. A round walks every queued
 # cast (a ray segment from its origin to its first facet, or out of the slab) in packets of
-# LANES lanes (_walk_casts); then one loop meets every cast's facet event (_trace_packets):
+# LANES lanes (_packets.walk_casts); then one loop meets every cast's facet event (_trace_packets):
 # Fresnel or diffuse scattering and roulette for a hit, whose path goes on with a new cast
 # queued for the next round, or the path's end. The events of a round are independent, so
 # their chains of divisions and square roots overlap instead of stalling the walk one by one.
 # Each path meets the same operations, in the same order, as in _trace_kernel: the same bits.
-
-# rows of the cast queue C: origin, direction, the per-cast constants of _cast_setup, the path
-_CO, _CD, _CINV, _CTSL, _CDU, _CPATH = 0, 3, 6, 8, 9, 12
-_CROWS = 13
-# rows of the results R of a round: the event, and the crossing piece of a hit (_facet_hit)
-_RROWS = 7
-
 
 @njit(inline="always")
 def _queue_cast(C, c, ox, oy, oz, dx, dy, dz, path, G):
     """Queue the cast from o along d of path ``path`` as cast c, with its per-cast set-up."""
     inv_dx, inv_dy, t_slab, du, dv, igd = _cast_setup(dx, dy, dz, oz, G[pk.G_SX], G[pk.G_SY],
                                                       G[pk.G_HMIN], G[pk.G_HMAX], G[pk.G_TOL])
-    C[_CO, c] = ox
-    C[_CO + 1, c] = oy
-    C[_CO + 2, c] = oz
-    C[_CD, c] = dx
-    C[_CD + 1, c] = dy
-    C[_CD + 2, c] = dz
-    C[_CINV, c] = inv_dx
-    C[_CINV + 1, c] = inv_dy
-    C[_CTSL, c] = t_slab
-    C[_CDU, c] = du
-    C[_CDU + 1, c] = dv
-    C[_CDU + 2, c] = igd
-    C[_CPATH, c] = path
-
-
-# row q of the queue goes to row _TO_LANE[q] of a lane; row _FROM_LANE[q] of a lane whose
-# cast ended to row q of the results
-_TO_LANE = (pk.OX, pk.OY, pk.OZ, pk.DX, pk.DY, pk.DZ, pk.IDX, pk.IDY, pk.TSL, pk.DU, pk.DV,
-            pk.IGD)
-_FROM_LANE = (pk.EVENT, pk.TA, pk.TB, pk.FA, pk.FB, pk.A1, pk.A2)
-
-
-@njit
-def _walk_casts(S, C, R, ncast, h, pyr, G):
-    """Walk casts 0 .. ncast - 1 of the queue C to their ends; R[:, c]: how cast c ended."""
-    nxt = 0
-    live = 0
-    while True:
-        for k in range(pk.LANES):  # give idle lanes the next casts
-            if S[pk.ACT, k] == 0.0 and nxt < ncast:
-                for q in range(len(_TO_LANE)):
-                    S[_TO_LANE[q], k] = C[q, nxt]
-                S[pk.T, k] = 0.0
-                S[pk.P2, k] = 1.0
-                S[pk.IP2, k] = 1.0
-                S[pk.STEPS, k] = 0.0
-                S[pk.ACT, k] = 1.0
-                S[pk.CAST, k] = nxt
-                nxt += 1
-                live += 1
-        if live == 0:
-            return
-        m = walk_step(S, h, pyr, G)
-        while m != 0:
-            k = trailing_zeros(m)
-            m &= m - 1
-            c = int(S[pk.CAST, k])
-            for q in range(_RROWS):
-                R[q, c] = S[_FROM_LANE[q], k]
-            S[pk.ACT, k] = 0.0
-            live -= 1
+    C[pk.Q_ORIGIN, c] = ox
+    C[pk.Q_ORIGIN + 1, c] = oy
+    C[pk.Q_ORIGIN + 2, c] = oz
+    C[pk.Q_DIR, c] = dx
+    C[pk.Q_DIR + 1, c] = dy
+    C[pk.Q_DIR + 2, c] = dz
+    C[pk.Q_INV, c] = inv_dx
+    C[pk.Q_INV + 1, c] = inv_dy
+    C[pk.Q_TSLAB, c] = t_slab
+    C[pk.Q_DU, c] = du
+    C[pk.Q_DU + 1, c] = dv
+    C[pk.Q_DU + 2, c] = igd
+    C[pk.Q_PATH, c] = path
 
 
 @loopjit
@@ -307,9 +261,8 @@ def _trace_packets(first, stop, order, dirs, per, seed, start, h, pyr, G, code, 
     ior = params[0]
     kext = params[1]
     alb = params[2]
-    S = np.zeros((pk.NROWS, pk.LANES))
-    C = np.empty((_CROWS, _BLOCK))
-    R = np.empty((_RROWS, _BLOCK))
+    C = np.empty((pk.QROWS, _BLOCK))
+    R = np.empty((pk.RROWS, _BLOCK))
     w = np.empty(_BLOCK)
     absorbed = np.empty(_BLOCK)
     bounces = np.empty(_BLOCK, np.int64)
@@ -326,21 +279,21 @@ def _trace_packets(first, stop, order, dirs, per, seed, start, h, pyr, G, code, 
             _queue_cast(C, j, ox, oy, oz, dx, dy, dz, j, G)
         ncast = n
         while ncast > 0:
-            _walk_casts(S, C, R, ncast, h, pyr, G)
+            walk_casts(C, R, ncast, h, pyr, G)
             queued = 0  # the next round's casts overwrite this round's, never ahead of them
             for c in range(ncast):
-                j = int(C[_CPATH, c])
-                dx = C[_CD, c]
-                dy = C[_CD + 1, c]
-                dz = C[_CD + 2, c]
+                j = int(C[pk.Q_PATH, c])
+                dx = C[pk.Q_DIR, c]
+                dy = C[pk.Q_DIR + 1, c]
+                dz = C[pk.Q_DIR + 2, c]
                 lost = 0.0
-                if R[0, c] == pk.HIT and bounces[j] < max_bounces:
+                if R[pk.R_EVENT, c] == pk.HIT and bounces[j] < max_bounces:
                     bounces[j] += 1
                     th, gx, gy, gz = _facet_hit(R[1, c], R[2, c], R[3, c], R[4, c], R[5, c],
                                                 R[6, c], sx, sy)
-                    px = C[_CO, c] + th * dx
-                    py = C[_CO + 1, c] + th * dy
-                    pz = C[_CO + 2, c] + th * dz
+                    px = C[pk.Q_ORIGIN, c] + th * dx
+                    py = C[pk.Q_ORIGIN + 1, c] + th * dy
+                    pz = C[pk.Q_ORIGIN + 2, c] + th * dz
                     dx, dy, dz, w[j], absorbed[j], strm[j] = _scatter(
                         code, ior, kext, alb, dx, dy, dz, gx, gy, gz, True, w[j], absorbed[j],
                         rr, strm[j])
@@ -349,7 +302,7 @@ def _trace_packets(first, stop, order, dirs, per, seed, start, h, pyr, G, code, 
                         _queue_cast(C, queued, ox, oy, oz, dx, dy, dz, j, G)
                         queued += 1
                         continue
-                elif R[0, c] != pk.ESCAPED:  # lost, or a hit beyond the bounce cap
+                elif R[pk.R_EVENT, c] != pk.ESCAPED:  # lost, or a hit beyond the bounce cap
                     lost = w[j]
                     w[j] = 0.0
                 _store_path(order[b0 + j], w[j], dx, dy, dz, bounces[j], absorbed[j], lost,

@@ -138,15 +138,16 @@ _CROSS = textwrap.dedent("""
     import numba
     import numpy as np
     from project.microgeometry import _packets as pk
-    from project.microgeometry._packets import walk_step
+    from project.microgeometry._packets import walk_casts
 
     @numba.njit(cache=False)
-    def step(S, h, pyr, G):
-        return walk_step(S, h, pyr, G)
+    def walk(C, R, n, h, pyr, G):
+        walk_casts(C, R, n, h, pyr, G)
 
-    sig = (numba.float64[:, ::1], numba.float64[:, ::1], numba.float32[::1], numba.float64[::1])
-    step.compile(sig)
-    asm = step.inspect_asm(sig)
+    a2 = numba.float64[:, ::1]
+    sig = (a2, a2, numba.int64, a2, numba.float32[::1], numba.float64[::1])
+    walk.compile(sig)
+    asm = walk.inspect_asm(sig)
     print(pk.LANES, *(len(re.findall(r"\\tv\\w+pd\\t[^\\n]*%" + r, asm)) for r in ("zmm", "ymm")),
           len(re.findall(r"\\tvgatherd", asm)))
 """)
