@@ -60,6 +60,8 @@ NCONST = 14
 _RAY = Q_PATH  # rows 0 .. 11 of the queue
 _T, _P2, _IP2, _STEPS, _LIVE, _CAST = range(_RAY, _RAY + 6)
 _STATE = _RAY + 6
+#: a lane's walk state at the start of a cast (the live flag is 1.0)
+_START = ((_T, 0.0), (_P2, 1.0), (_IP2, 1.0), (_STEPS, 0.0), (_LIVE, 1.0))
 
 
 def _axis(v: Lanes, o, d, inv_d, t, w, iw):
@@ -242,8 +244,7 @@ def _walk_codegen(context, builder, signature, args):
                 with more:
                     for row in range(_RAY):
                         put(row, lane, b.load(entry(carr.data, cstride, row, n)))
-                    for row, x in ((_T, 0.0), (_P2, 1.0), (_IP2, 1.0), (_STEPS, 0.0),
-                                   (_LIVE, 1.0)):
+                    for row, x in _START:
                         put(row, lane, ir.Constant(d, x))
                     put(_CAST, lane, b.sitofp(n, d))
                     b.store(b.add(n, ir.Constant(i64, 1)), nxt)
