@@ -846,6 +846,11 @@ def _exit_sums_kernel(first, stop, per, bv, w, sums):
                     sums[d, k] = fma(f, bv[p, k], sums[d, k])
 
 
+#: directions per tile of the outer-product kernel: its rows of the exit sums (K doubles each)
+#: stay in the L2 cache while every row block of m takes them (at K = 91, 186 kB)
+_OUTER_TILE = 256
+
+
 @loopjit
 def _outer_kernel(first, stop, bu, c, sums, m):
     # blocks first .. stop - 1 (run_parallel) of four rows of m: m[j] = sum_d c_d bu[d, j] sums[d]
@@ -853,75 +858,89 @@ def _outer_kernel(first, stop, bu, c, sums, m):
     # k, so each pass loads and stores the block once for sixteen multiply-adds: about 2x
     # faster than one row and one direction per pass (same bits). The multiply-adds are
     # fused (basis.jit.fma): 1.2-1.4x faster on AMD Zen 1, 2x on Intel's AVX-512 cores by
-    # llvm-mca's model of Skylake-SP, where products and sums share two ports.
+    # llvm-mca's model of Skylake-SP, where products and sums share two ports. The
+    # directions run in tiles of _OUTER_TILE (a multiple of four), each taken by every block
+    # in turn, its rows of sums read from the L2 cache instead of memory; a block's rows
+    # are carried from tile to tile in m, so every entry adds the same products in the same
+    # order as over all directions at once (the same bits).
     wide_loops()  # loops over k: eight doubles per instruction on any AVX-512 CPU
     nd, kk = bu.shape
-    for b in range(first, stop):
-        j0 = 4 * b
-        nj = min(4, kk - j0)
-        r = np.zeros((4, kk))
-        r0 = r[0]
-        r1 = r[1]
-        r2 = r[2]
-        r3 = r[3]
-        # rows past the end repeat the last one (computed, not stored)
-        ja = j0
-        jb = j0 + min(1, nj - 1)
-        jc = j0 + min(2, nj - 1)
-        jd = j0 + min(3, nj - 1)
-        d = 0
-        while d + 3 < nd:
-            c0 = c[d]
-            c1 = c[d + 1]
-            c2 = c[d + 2]
-            c3 = c[d + 3]
-            a00 = c0 * bu[d, ja]
-            a01 = c0 * bu[d, jb]
-            a02 = c0 * bu[d, jc]
-            a03 = c0 * bu[d, jd]
-            a10 = c1 * bu[d + 1, ja]
-            a11 = c1 * bu[d + 1, jb]
-            a12 = c1 * bu[d + 1, jc]
-            a13 = c1 * bu[d + 1, jd]
-            a20 = c2 * bu[d + 2, ja]
-            a21 = c2 * bu[d + 2, jb]
-            a22 = c2 * bu[d + 2, jc]
-            a23 = c2 * bu[d + 2, jd]
-            a30 = c3 * bu[d + 3, ja]
-            a31 = c3 * bu[d + 3, jb]
-            a32 = c3 * bu[d + 3, jc]
-            a33 = c3 * bu[d + 3, jd]
-            s0 = sums[d]
-            s1 = sums[d + 1]
-            s2 = sums[d + 2]
-            s3 = sums[d + 3]
-            for k in range(kk):
-                x0 = s0[k]
-                x1 = s1[k]
-                x2 = s2[k]
-                x3 = s3[k]
-                r0[k] = fma(a30, x3, fma(a20, x2, fma(a10, x1, fma(a00, x0, r0[k]))))
-                r1[k] = fma(a31, x3, fma(a21, x2, fma(a11, x1, fma(a01, x0, r1[k]))))
-                r2[k] = fma(a32, x3, fma(a22, x2, fma(a12, x1, fma(a02, x0, r2[k]))))
-                r3[k] = fma(a33, x3, fma(a23, x2, fma(a13, x1, fma(a03, x0, r3[k]))))
-            d += 4
-        while d < nd:
-            cd = c[d]
-            a0 = cd * bu[d, ja]
-            a1 = cd * bu[d, jb]
-            a2 = cd * bu[d, jc]
-            a3 = cd * bu[d, jd]
-            s = sums[d]
-            for k in range(kk):
-                x = s[k]
-                r0[k] = fma(a0, x, r0[k])
-                r1[k] = fma(a1, x, r1[k])
-                r2[k] = fma(a2, x, r2[k])
-                r3[k] = fma(a3, x, r3[k])
-            d += 1
-        for i in range(nj):
-            for k in range(kk):
-                m[j0 + i, k] = r[i, k]
+    r = np.empty((4, kk))
+    r0 = r[0]
+    r1 = r[1]
+    r2 = r[2]
+    r3 = r[3]
+    for t0 in range(0, nd, _OUTER_TILE):
+        t1 = min(nd, t0 + _OUTER_TILE)
+        for b in range(first, stop):
+            j0 = 4 * b
+            nj = min(4, kk - j0)
+            # rows past the end repeat the last one (computed, not stored)
+            ja = j0
+            jb = j0 + min(1, nj - 1)
+            jc = j0 + min(2, nj - 1)
+            jd = j0 + min(3, nj - 1)
+            if t0 == 0:
+                r[:, :] = 0.0
+            else:
+                for k in range(kk):
+                    r0[k] = m[ja, k]
+                    r1[k] = m[jb, k]
+                    r2[k] = m[jc, k]
+                    r3[k] = m[jd, k]
+            d = t0
+            while d + 3 < t1:
+                c0 = c[d]
+                c1 = c[d + 1]
+                c2 = c[d + 2]
+                c3 = c[d + 3]
+                a00 = c0 * bu[d, ja]
+                a01 = c0 * bu[d, jb]
+                a02 = c0 * bu[d, jc]
+                a03 = c0 * bu[d, jd]
+                a10 = c1 * bu[d + 1, ja]
+                a11 = c1 * bu[d + 1, jb]
+                a12 = c1 * bu[d + 1, jc]
+                a13 = c1 * bu[d + 1, jd]
+                a20 = c2 * bu[d + 2, ja]
+                a21 = c2 * bu[d + 2, jb]
+                a22 = c2 * bu[d + 2, jc]
+                a23 = c2 * bu[d + 2, jd]
+                a30 = c3 * bu[d + 3, ja]
+                a31 = c3 * bu[d + 3, jb]
+                a32 = c3 * bu[d + 3, jc]
+                a33 = c3 * bu[d + 3, jd]
+                s0 = sums[d]
+                s1 = sums[d + 1]
+                s2 = sums[d + 2]
+                s3 = sums[d + 3]
+                for k in range(kk):
+                    x0 = s0[k]
+                    x1 = s1[k]
+                    x2 = s2[k]
+                    x3 = s3[k]
+                    r0[k] = fma(a30, x3, fma(a20, x2, fma(a10, x1, fma(a00, x0, r0[k]))))
+                    r1[k] = fma(a31, x3, fma(a21, x2, fma(a11, x1, fma(a01, x0, r1[k]))))
+                    r2[k] = fma(a32, x3, fma(a22, x2, fma(a12, x1, fma(a02, x0, r2[k]))))
+                    r3[k] = fma(a33, x3, fma(a23, x2, fma(a13, x1, fma(a03, x0, r3[k]))))
+                d += 4
+            while d < t1:  # only in the last tile (the others hold a multiple of four)
+                cd = c[d]
+                a0 = cd * bu[d, ja]
+                a1 = cd * bu[d, jb]
+                a2 = cd * bu[d, jc]
+                a3 = cd * bu[d, jd]
+                s = sums[d]
+                for k in range(kk):
+                    x = s[k]
+                    r0[k] = fma(a0, x, r0[k])
+                    r1[k] = fma(a1, x, r1[k])
+                    r2[k] = fma(a2, x, r2[k])
+                    r3[k] = fma(a3, x, r3[k])
+                d += 1
+            for i in range(nj):
+                for k in range(kk):
+                    m[j0 + i, k] = r[i, k]
 
 
 # -- checkpoints ------------------------------------------------------------------------------
