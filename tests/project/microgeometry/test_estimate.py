@@ -23,6 +23,7 @@ import numpy as np
 import pytest
 
 from basis import HemiHarmonics, HemiZernike
+from basis.jit import fma
 from project import project
 from project.microgeometry import Diffuse, GaussianSurface, Heightfield, merge, simulate, trace
 from project.microgeometry import estimate as est_mod  # to patch its private _chunk
@@ -97,6 +98,37 @@ def test_deterministic_across_threads_and_chunks(rough):
     e = simulate(rough, basis, rays=20000, seed=6, chunk=300)
     assert not np.array_equal(a.raw, e.raw)
 
+
+
+@numba.njit(cache=False)
+def _outer_reference(bu, c, sums):
+    # m[j, k] = sum over d, in order, of (c_d bu[d, j]) sums[d, k], each term one fused
+    # multiply-add: the operations the blocked, tiled kernel must perform for every entry
+    nd, kk = bu.shape
+    m = np.zeros((kk, kk))
+    for j in range(kk):
+        for k in range(kk):
+            r = 0.0
+            for d in range(nd):
+                r = fma(c[d] * bu[d, j], sums[d, k], r)
+            m[j, k] = r
+    return m
+
+
+@pytest.mark.parametrize("nd, kk", [(1, 1), (3, 5), (255, 7), (256, 6), (257, 10),
+                                    (1031, 13)])
+def test_outer_kernel_is_the_ordered_sum_of_fused_products(nd, kk):
+    # tiles of _OUTER_TILE directions, blocks of four rows and of four directions, rows
+    # past the end, the last tile's odd directions, signed zeros: bit for bit
+    from basis.jit import run_parallel
+
+    rng = np.random.default_rng(nd + kk)
+    bu, sums = rng.normal(size=(nd, kk)), rng.normal(size=(nd, kk)) * 1e-3
+    c = rng.random(nd) + 0.5
+    bu[0, 0], sums[0, -1] = 0.0, -0.0
+    m = np.empty((kk, kk))
+    run_parallel(est_mod._outer_kernel, (kk + 3) // 4, bu, c, sums, m)
+    assert np.array_equal(m.view(np.int64), _outer_reference(bu, c, sums).view(np.int64))
 
 
 def test_lanes_give_the_bits_of_one_thread(rough, monkeypatch):
