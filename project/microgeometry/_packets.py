@@ -90,8 +90,9 @@ def _wrap(v: Lanes, f, n, inv_n):
 
 def _step(v: Lanes, k, st, hdata, pdata, piece, hit_slot):
     # One step of _intersect for every lane: returns (t, p2, ip2, steps) after it, the
-    # lanes whose cast ended in it and how; a lane that hit stores its crossing piece in the
-    # slots ``piece`` (the other lanes' entries are left alone)
+    # lanes whose cast ended in it and how. A step with a lane at the finest level stores
+    # every lane's crossing piece in the slots ``piece``: the walk reads them right after
+    # the step, and only for the lanes that hit in it
     b = v.b
     sx, sy, isx, isy, nx, ny, inx, iny, cells, hmin, hmax, tol, ptop, maxsteps = k
     ox, oy, oz, dx, dy, dz, idx, idy, tsl, du, dv, igd, t, p2, ip2, steps = st[:_LIVE]
@@ -162,7 +163,7 @@ def _step(v: Lanes, k, st, hdata, pdata, piece, hit_slot):
                 hit = hit | cross
         hit = leaf & hit
         for slot, x in zip(piece, kept, strict=True):
-            b.store(v.where(hit, x, Vec(v, b.load(slot))).v, slot)
+            b.store(x.v, slot)
         b.store(hit.m, hit_slot)
     hit = Mask(v, b.load(hit_slot))
 
